@@ -1,0 +1,51 @@
+//! Frame sources, in the manner of smoltcp's `phy`: one trait, [`CanSource`], implemented by the
+//! real sources (log readers, live SocketCAN) and by layers that wrap any source (fault injector,
+//! recorder). A source yields frames in arrival order and counts, rather than hides, everything
+//! it had to skip.
+//!
+//! Not here: decoding (see [`crate::dbc`]) or any decision about what a frame means.
+
+use crate::wire::Frame;
+
+/// Why a source skipped input (a counted, reported skip, never a panic).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Skip {
+    /// Where: `file:line` for logs, the interface name for live sources.
+    pub location: String,
+    /// What was wrong, for a human.
+    pub reason: String,
+}
+
+/// Counters every source keeps.
+#[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct SourceStats {
+    /// Frames delivered.
+    pub frames: u64,
+    /// Lines or records that could not be parsed.
+    pub malformed: u64,
+    /// Records deliberately not delivered (e.g. CAN XL, filtered IDs).
+    pub skipped: u64,
+    /// Error frames delivered.
+    pub error_frames: u64,
+    /// Timestamps earlier than the previous frame's.
+    pub backwards_timestamps: u64,
+    /// Frames the kernel or logger reported dropped (candump DROPCOUNT, socket overflow).
+    pub dropped: u64,
+}
+
+/// Anything that yields CAN frames.
+pub trait CanSource {
+    /// The next frame; `Ok(None)` at the end of a finite source. Malformed input is not an
+    /// error: it is counted in [`CanSource::stats`] and its first occurrences are available from
+    /// [`CanSource::take_skips`]. `Err` is reserved for failures of the source itself (I/O).
+    fn next_frame(&mut self) -> std::io::Result<Option<Frame>>;
+
+    /// Counters so far.
+    fn stats(&self) -> SourceStats;
+
+    /// Skip reports collected since the last call (bounded: a source keeps at most a fixed number
+    /// and counts the rest).
+    fn take_skips(&mut self) -> Vec<Skip> {
+        Vec::new()
+    }
+}
