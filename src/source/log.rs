@@ -13,6 +13,8 @@
 
 use super::lines::{Line, LineReader};
 use super::{CanSource, Skip, SourceStats};
+use crate::wire::asc::{AscLine, AscParser};
+use crate::wire::blf::{BlfEvent, BlfReader};
 use crate::wire::candump::{self, Parsed};
 use crate::wire::{Frame, FrameKind};
 use std::fs::File;
@@ -74,6 +76,8 @@ type BoxRead = Box<dyn Read + Send>;
 
 enum Kind {
     Candump(LineReader<BoxRead>),
+    Asc(LineReader<BoxRead>, AscParser),
+    Blf(BlfReader<BoxRead>),
 }
 
 /// Replays a candump, ASC or BLF log as a [`CanSource`].
@@ -139,8 +143,8 @@ impl LogReader {
     ) -> LogReader {
         let kind = match format {
             LogFormat::Candump => Kind::Candump(LineReader::new(reader)),
-            // ASC and BLF readers land in the next commit.
-            _ => Kind::Candump(LineReader::new(reader)),
+            LogFormat::Asc => Kind::Asc(LineReader::new(reader), AscParser::new()),
+            LogFormat::Blf => Kind::Blf(BlfReader::new(reader)),
         };
         LogReader {
             name: name.as_ref().display().to_string(),
@@ -163,6 +167,16 @@ impl LogReader {
     /// The detected format.
     pub fn format(&self) -> LogFormat {
         self.format
+    }
+
+    /// For ASC and BLF: the wall-clock start of the measurement in ns since the Unix epoch (as
+    /// the file's header states it, read as UTC), which the frame timestamps include.
+    pub fn start_epoch_ns(&self) -> Option<i64> {
+        match &self.kind {
+            Kind::Candump(_) => None,
+            Kind::Asc(_, p) => p.start_epoch_ns(),
+            Kind::Blf(b) => b.start_epoch_ns(),
+        }
     }
 
     fn report(&mut self, where_: u64, unit: &str, reason: String) {
@@ -201,6 +215,33 @@ impl LogReader {
                     Err(e) => Step::Malformed(lines.line_no(), half_written(e, terminated)),
                 })
             }
+            Kind::Asc(lines, parser) => {
+                let line = match lines.next_line()? {
+                    None => return Ok(Step::End),
+                    Some(l) => l,
+                };
+                let (bytes, terminated) = match line {
+                    Line::TooLong => {
+                        return Ok(Step::Malformed(
+                            lines.line_no(),
+                            "line longer than 256 KiB".into(),
+                        ))
+                    }
+                    Line::Text { bytes, terminated } => (bytes, terminated),
+                };
+                Ok(match parser.parse_line(bytes) {
+                    Ok(AscLine::Frame(f)) => Step::Frame(f),
+                    Ok(AscLine::Header) => Step::Nothing,
+                    Ok(AscLine::OtherEvent) => Step::Skipped(0, String::new()),
+                    Err(e) => Step::Malformed(lines.line_no(), half_written(e, terminated)),
+                })
+            }
+            Kind::Blf(blf) => Ok(match blf.next_event()? {
+                Some(Ok(BlfEvent::Frame(f))) => Step::Frame(f),
+                Some(Ok(BlfEvent::Other)) => Step::Skipped(0, String::new()),
+                Some(Err(e)) => Step::Malformed(blf.object_index(), e.to_string()),
+                None => Step::End,
+            }),
         }
     }
 }
