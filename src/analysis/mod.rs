@@ -7,8 +7,11 @@
 //! module docs). What it is not: a general DSP library, nor anything that runs per CAN frame —
 //! these work on whole recorded windows.
 
+pub mod chaos;
+pub mod cwt;
 pub mod filter;
 pub mod spectrum;
+pub mod sweep;
 
 pub use filter::{bandpass_zero_phase, Bandpass};
 pub use spectrum::{welch, Psd};
