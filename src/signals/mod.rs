@@ -2,3 +2,4 @@
 //! acceleration, how to compose them, and whether they are valid (timeouts, counters, checksums).
 
 pub mod checksum;
+pub mod mapping;
