@@ -5,6 +5,9 @@
 //!
 //! Not here: decoding (see [`crate::dbc`]) or any decision about what a frame means.
 
+pub mod lines;
+pub mod log;
+
 use crate::wire::Frame;
 
 /// Why a source skipped input (a counted, reported skip, never a panic).
