@@ -12,6 +12,9 @@ pub mod recorder;
 
 use crate::wire::Frame;
 
+#[cfg(target_os = "linux")]
+pub mod socketcan;
+
 /// Why a source skipped input (a counted, reported skip, never a panic).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Skip {
