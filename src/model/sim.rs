@@ -108,12 +108,8 @@ impl Scenario {
         if !(self.duration_s.is_finite() && self.duration_s > 0.0 && self.duration_s <= 3600.0) {
             return err("duration_s", self.duration_s, "must lie in (0, 3600] s");
         }
-        if !(self.h_s.is_finite() && self.h_s > 0.0 && self.h_s <= 5e-4) {
-            return err(
-                "h_s",
-                self.h_s,
-                "must lie in (0, 5e-4] s (RK4 is unstable on the contact stiffness above)",
-            );
+        if !(self.h_s.is_finite() && self.h_s > 0.0 && self.h_s <= 1e-3) {
+            return err("h_s", self.h_s, "must lie in (0, 1e-3] s");
         }
         if !(self.output_hz.is_finite() && self.output_hz > 0.0 && self.output_hz <= 1.0 / self.h_s)
         {
