@@ -5,7 +5,13 @@
 //!
 //! Not here: decoding (see [`crate::dbc`]) or any decision about what a frame means.
 
+pub mod lines;
+pub mod log;
+
 use crate::wire::Frame;
+
+#[cfg(target_os = "linux")]
+pub mod socketcan;
 
 /// Why a source skipped input (a counted, reported skip, never a panic).
 #[derive(Clone, Debug, PartialEq, Eq)]
