@@ -1,0 +1,1 @@
+//! Workshop inspection report (issue 6 item 5).
