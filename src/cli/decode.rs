@@ -15,24 +15,29 @@ use crate::dbc::{Database, DecodeError, Message, RawValue};
 use crate::source::{CanSource, Skip, SourceStats};
 use crate::wire::{Frame, FrameKind};
 
-/// Decode CAN logs with a DBC file.
-///
-/// Reads each LOG in turn (candump -L, Vector ASC or BLF, detected from the content) and prints
-/// one record per frame whose ID the DBC defines. Value-table entries stay numbers. At the end a
-/// summary goes to stderr: frames read, decoded, with unknown IDs, refused (a multiplexer value
-/// the DBC does not define, as cantools refuses them), short frames whose missing signals were
-/// left out, non-data frames, and what the log reader skipped (with file:line).
-///
-/// JSON lines (default), one object per decoded frame:
-///   {"t": 46408.584954, "id": 180, "extended": false, "msg": "SPEED",
-///    "signals": {"ENCODER": 29, "SPEED": 29.38}}
-/// with --raw also "raw": {...} holding the unscaled values. Non-finite values (a float signal
-/// holding NaN or infinity) are written as null.
-///
-/// CSV: a header `t,id,extended,msg,signal,value` (plus `raw` with --raw), then one row per
-/// decoded signal.
+/// The manual part of `shimmy decode --help`.
+const MANUAL: &str = "\
+Reads each LOG in turn (candump -L, Vector ASC or BLF, detected from the content) and prints one
+record per frame whose ID the DBC defines. Value-table entries stay numbers. At the end a summary
+goes to stderr: frames read, decoded, with unknown IDs, refused (a multiplexer value the DBC does
+not define, as cantools refuses them), short frames whose missing signals were left out,
+remote/error frames, and what the log reader skipped (with file:line).
+
+JSON lines (default), one object per decoded frame:
+  {\"t\": 46408.584954, \"id\": 180, \"extended\": false, \"msg\": \"SPEED\",
+   \"signals\": {\"ENCODER\": 29, \"SPEED\": 29.38, \"CHECKSUM\": 94}}
+With --raw also \"raw\": {...} holding the unscaled values. Non-finite values (a float signal
+holding NaN or infinity) are written as null.
+
+CSV: a header t,id,extended,msg,signal,value (plus raw with --raw), then one row per decoded
+signal.
+
+Example:
+  shimmy decode --dbc toyota_new_mc_pt_generated.dbc rav4_2017_seg40_bus0.log | head";
+
+/// Arguments of `shimmy decode`.
 #[derive(clap::Args, Debug)]
-#[command(verbatim_doc_comment)]
+#[command(after_long_help = MANUAL)]
 pub struct Args {
     /// DBC file describing the bus (UTF-8 or Windows-1252). Statements it cannot use are
     /// skipped and counted; see --dbc-report.
