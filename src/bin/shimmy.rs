@@ -15,12 +15,15 @@ struct Cli {
 enum Cmd {
     /// Decode CAN logs (candump -L, ASC, BLF) with a DBC file, like `cantools decode`.
     Decode(shimmy::cli::decode::Args),
+    /// Workshop inspection report (HTML or JSON) from shimmyd's journal, state, or CAN logs.
+    Report(shimmy::cli::report::Args),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result: anyhow::Result<()> = match cli.cmd {
         Cmd::Decode(a) => shimmy::cli::decode::run(a),
+        Cmd::Report(a) => shimmy::cli::report::run(a),
     };
     if let Err(e) = result {
         eprintln!("shimmy: error: {e:#}");

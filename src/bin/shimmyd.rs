@@ -4,7 +4,6 @@ use std::path::PathBuf;
 
 use clap::Parser;
 use shimmy::daemon::config::Config;
-use shimmy::daemon::pipeline::{EventStage, NoObserver};
 use shimmy::daemon::run::{run, Options};
 
 /// shimmyd watches a vehicle's CAN bus (SocketCAN, read-only) or replays CAN logs, detects
@@ -41,10 +40,6 @@ struct Cli {
     /// printing each acknowledged (fsynced) sequence number on stdout.
     #[arg(long, value_name = "DIR", hide = true)]
     journal_stress: Option<PathBuf>,
-}
-
-fn stage_for(_cfg: &Config) -> anyhow::Result<Box<dyn EventStage>> {
-    Ok(Box::new(NoObserver))
 }
 
 fn journal_stress(dir: &std::path::Path) -> anyhow::Result<()> {
@@ -86,8 +81,9 @@ fn main() {
                     replay: cli.replay,
                     fast: cli.fast,
                     state_dir: cli.state_dir,
+                    journal_dir: None,
                 },
-                &stage_for,
+                &shimmy::daemon::stage::for_config,
             )
         }
     };

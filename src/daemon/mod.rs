@@ -17,5 +17,6 @@ pub mod config;
 pub mod counters;
 pub mod pipeline;
 pub mod run;
+pub mod stage;
 pub mod state;
 pub mod transmit;

@@ -43,6 +43,8 @@ pub struct Options {
     pub replay: Vec<PathBuf>,
     pub fast: bool,
     pub state_dir: Option<PathBuf>,
+    /// Overrides outputs.journal_dir.
+    pub journal_dir: Option<PathBuf>,
 }
 
 /// Builds the event stage for a configuration (the observer adapter, or [`super::pipeline::NoObserver`]).
@@ -405,7 +407,10 @@ impl Daemon {
 
 /// Runs the daemon until the input ends (replay) or SIGTERM/SIGINT.
 pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
-    let cfg = Config::load(&opts.config)?;
+    let mut cfg = Config::load(&opts.config)?;
+    if let Some(j) = &opts.journal_dir {
+        cfg.outputs.journal_dir = j.clone();
+    }
     let (db, report) = Database::load(&cfg.input.dbc)
         .with_context(|| format!("input.dbc: cannot load {}", cfg.input.dbc.display()))?;
     if !report.skipped.is_empty() {
