@@ -12,11 +12,15 @@ struct Cli {
 }
 
 #[derive(Subcommand, Debug)]
-enum Cmd {}
+enum Cmd {
+    Simulate(shimmy::cli::simulate::Args),
+}
 
 fn main() {
     let cli = Cli::parse();
-    let result: anyhow::Result<()> = match cli.cmd {};
+    let result: anyhow::Result<()> = match cli.cmd {
+        Cmd::Simulate(a) => shimmy::cli::simulate::run(a),
+    };
     if let Err(e) = result {
         eprintln!("shimmy: error: {e:#}");
         std::process::exit(1);
