@@ -2,3 +2,4 @@
 //! a `run` function. Help text here is the manual.
 
 pub mod decode;
+pub mod reproduce;
