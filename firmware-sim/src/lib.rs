@@ -1,4 +1,20 @@
-//! firmware-sim: simulated vehicle ECUs that drive the shimmy model with a known clearance and
-//! put the frames of the reference bus (`dbc/`) on a CAN interface or into a candump log.
+//! firmware-sim: simulated vehicle ECUs that drive the shimmy model (`shimmy::model`, MODEL.md)
+//! with a known joint clearance and put the frames of our reference bus
+//! (`dbc/shimmy_reference.dbc`) into a `candump -L` log or onto a SocketCAN interface, together
+//! with a ground-truth sidecar saying what was really simulated.
 //!
-//! Not yet implemented: see issue 4. This crate currently only exists so the workspace layout is fixed.
+//! One job per module:
+//!
+//! | module | job |
+//! |---|---|
+//! | [`scenario`] | the scenario TOML (`config/scenarios/*.toml`): parse and validate |
+//! | [`drive`] | the drive cycle: longitudinal demand, brake pedal, braking events |
+//! | [`plant`] | the plant interface, the model adapter, the driver's lane keeping |
+//!
+//! Not here: reading frames back or judging them (that is the monitor's job, in `shimmy`).
+
+pub mod drive;
+pub mod plant;
+pub mod scenario;
+
+pub use scenario::Scenario;

@@ -5,6 +5,11 @@
 //!
 //! Not here: decoding (see [`crate::dbc`]) or any decision about what a frame means.
 
+pub mod fault;
+pub mod lines;
+pub mod log;
+pub mod recorder;
+
 use crate::wire::Frame;
 
 #[cfg(target_os = "linux")]

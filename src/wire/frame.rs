@@ -38,6 +38,23 @@ impl IfaceName {
         n
     }
 
+    /// The name from raw bytes, if they are valid UTF-8 of at most 15 bytes (no truncation:
+    /// log parsers use this to reject an over-long name rather than silently shorten it).
+    pub fn from_bytes(name: &[u8]) -> Option<IfaceName> {
+        if name.len() > 15 {
+            return None;
+        }
+        std::str::from_utf8(name).ok()?;
+        let mut n = IfaceName::new();
+        n.buf[..name.len()].copy_from_slice(name);
+        n.len = name.len() as u8;
+        Some(n)
+    }
+
+    pub fn as_bytes(&self) -> &[u8] {
+        &self.buf[..self.len as usize]
+    }
+
     pub fn as_str(&self) -> &str {
         // Only ever filled from whole UTF-8 characters.
         std::str::from_utf8(&self.buf[..self.len as usize]).unwrap_or("")

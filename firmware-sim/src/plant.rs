@@ -1,0 +1,146 @@
+//! The plant firmware-sim drives: anything that integrates a vehicle's steering and longitudinal
+//! motion one fixed step at a time. [`ModelPlant`] wraps the project's 5-DOF shimmy model
+//! (`shimmy::model`, MODEL.md); tests may substitute a simpler plant with known outputs.
+//!
+//! Also here: [`LaneKeeping`], the driver's slow steering corrections, which MODEL.md has no input
+//! for. They are added kinematically at the steering wheel (see its docs).
+//!
+//! Not here: sensors, frames or the drive cycle.
+
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+/// One fixed-step vehicle simulation.
+pub trait Plant {
+    /// Simulated time (s).
+    fn t_s(&self) -> f64;
+    /// Advance one step. Must not allocate.
+    fn step(&mut self);
+    /// Longitudinal demand for the next steps (m/s², + = decelerating). MODEL.md §6.
+    fn set_decel_demand(&mut self, a_mps2: f64);
+    /// Current joint clearances (m), for wear growth (MODEL.md §4).
+    fn set_clearance_m(&mut self, left_m: f64, right_m: f64);
+    /// Vehicle speed (m/s).
+    fn speed_mps(&self) -> f64;
+    /// Longitudinal acceleration of the body (m/s², + = speeding up).
+    fn accel_mps2(&self) -> f64;
+    /// Steering-wheel (pinion) angle δ_sw (rad), MODEL.md §8.
+    fn steering_wheel_rad(&self) -> f64;
+}
+
+/// The driver's lane-keeping steering input at the steering wheel: white noise through two
+/// first-order lags of time constant `tau/2` each, scaled to the requested RMS, plus a constant
+/// offset. Its spectrum falls as f⁻⁴ above ~1/(π·tau), so at the 3–25 Hz shimmy band it is
+/// several orders of magnitude below the shimmy signal (MODEL.md §11 removes it).
+///
+/// It is added to the model's δ_sw rather than fed into the model: MODEL.md has no driver input,
+/// and at these frequencies (< 0.5 Hz) the steering system follows the wheel quasi-statically.
+#[derive(Clone, Debug)]
+pub struct LaneKeeping {
+    a: f64,
+    drive: f64,
+    x1: f64,
+    x2: f64,
+    scale_rad: f64,
+    offset_rad: f64,
+}
+
+impl LaneKeeping {
+    /// `dt_s` is the update interval, `rms_deg` the RMS of the varying part.
+    pub fn new(rms_deg: f64, tau_s: f64, offset_deg: f64, dt_s: f64) -> LaneKeeping {
+        let tau1 = 0.5 * tau_s;
+        let a = (-dt_s / tau1).exp();
+        LaneKeeping {
+            a,
+            // Stage 1 is an exact-discretised OU process with unit variance.
+            drive: (1.0 - a * a).sqrt(),
+            x1: 0.0,
+            x2: 0.0,
+            // Two equal first-order stages halve the variance of the first (σ² → σ²/2).
+            scale_rad: rms_deg.to_radians() * std::f64::consts::SQRT_2,
+            offset_rad: offset_deg.to_radians(),
+        }
+    }
+
+    /// Advance one interval; returns the steering-wheel angle to add (rad).
+    pub fn step(&mut self, rng: &mut ChaCha8Rng) -> f64 {
+        let w: f64 = StandardNormal.sample(rng);
+        let x1_prev = self.x1;
+        self.x1 = self.a * self.x1 + self.drive * w;
+        self.x2 = self.a * self.x2 + (1.0 - self.a) * x1_prev;
+        self.offset_rad + self.scale_rad * self.x2
+    }
+
+    /// Start from a random point of the stationary distribution (by running the filters for
+    /// ten time constants) so short runs are not biased towards zero.
+    pub fn warm_up(&mut self, rng: &mut ChaCha8Rng) {
+        let n = (10.0 / (1.0 - self.a)).ceil().min(1e6) as usize;
+        for _ in 0..n {
+            self.step(rng);
+        }
+    }
+}
+
+/// A plant without steering dynamics, for testing the sensor and ground-truth pipeline against
+/// known values: a point mass that follows the demand exactly, whose steering wheel oscillates
+/// as `amplitude·sin(2π·f·t)` while it decelerates by more than 1 m/s² and rests at zero
+/// otherwise.
+#[derive(Clone, Debug)]
+pub struct PointMass {
+    t: f64,
+    h: f64,
+    n: u64,
+    v: f64,
+    a_dem: f64,
+    pub shimmy_amplitude_rad: f64,
+    pub shimmy_hz: f64,
+    steer: f64,
+}
+
+impl PointMass {
+    pub fn new(v0_mps: f64, h_s: f64, shimmy_amplitude_rad: f64, shimmy_hz: f64) -> PointMass {
+        PointMass {
+            t: 0.0,
+            h: h_s,
+            n: 0,
+            v: v0_mps,
+            a_dem: 0.0,
+            shimmy_amplitude_rad,
+            shimmy_hz,
+            steer: 0.0,
+        }
+    }
+}
+
+impl Plant for PointMass {
+    fn t_s(&self) -> f64 {
+        self.t
+    }
+    fn step(&mut self) {
+        self.v = (self.v - self.a_dem * self.h).max(0.0);
+        self.n += 1;
+        self.t = self.n as f64 * self.h;
+        self.steer = if self.a_dem > 1.0 {
+            self.shimmy_amplitude_rad * (2.0 * std::f64::consts::PI * self.shimmy_hz * self.t).sin()
+        } else {
+            0.0
+        };
+    }
+    fn set_decel_demand(&mut self, a_mps2: f64) {
+        self.a_dem = a_mps2;
+    }
+    fn set_clearance_m(&mut self, _left_m: f64, _right_m: f64) {}
+    fn speed_mps(&self) -> f64 {
+        self.v
+    }
+    fn accel_mps2(&self) -> f64 {
+        if self.v > 0.0 {
+            -self.a_dem
+        } else {
+            0.0
+        }
+    }
+    fn steering_wheel_rad(&self) -> f64 {
+        self.steer
+    }
+}

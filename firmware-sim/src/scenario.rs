@@ -1,0 +1,574 @@
+//! Scenario files: what one firmware-sim run simulates, as TOML (`config/scenarios/*.toml`).
+//!
+//! A scenario names the vehicle (a `VehicleParams` TOML file, MODEL.md §9 when absent), the true
+//! joint clearance (left/right, single or dual, optionally growing with distance), the drive
+//! cycle (cruise segments, braking events, re-acceleration), the excitation (MODEL.md §7 wheel
+//! unbalance and road noise, driver steering), the sensors (noise, send-period jitter) and
+//! optional faults. Every table rejects unknown keys, so a typo is an error that names the key
+//! and its line instead of a silently ignored setting.
+//!
+//! This module only describes and validates; it does not simulate (see [`crate::sim`]).
+//! Units follow the edge convention: names carry `_kmh`, `_mm`, `_g`, `_deg`, `_s`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use serde::{Deserialize, Serialize};
+
+/// One scenario file.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Scenario {
+    /// Short name (defaults to the file stem).
+    #[serde(default)]
+    pub name: String,
+    /// One line for humans.
+    #[serde(default)]
+    pub description: String,
+    /// Seed of every random choice (unbalance phases, road noise, sensor noise, jitter, faults).
+    pub seed: u64,
+    /// Vehicle parameters file (a `shimmy::model::VehicleParams` TOML), relative to the
+    /// scenario file. Absent: the MODEL.md §9 defaults.
+    #[serde(default)]
+    pub vehicle: Option<PathBuf>,
+    /// Model integration step (s); MODEL.md §10 uses 1e-4.
+    #[serde(default = "default_step_s")]
+    pub step_s: f64,
+    /// Start of the log as Unix time (s); frame timestamps are this plus simulated time.
+    #[serde(default = "default_start_unix_s")]
+    pub start_unix_s: f64,
+    pub clearance: Clearance,
+    pub drive: Drive,
+    #[serde(default)]
+    pub excitation: Excitation,
+    #[serde(default)]
+    pub driver: Driver,
+    #[serde(default)]
+    pub sensors: Sensors,
+    #[serde(default)]
+    pub faults: Faults,
+}
+
+fn default_step_s() -> f64 {
+    1e-4
+}
+fn default_start_unix_s() -> f64 {
+    // 2026-01-01T00:00:00Z: a fixed epoch so logs are reproducible.
+    1_767_225_600.0
+}
+
+/// True clearance of the two arm/tie-rod joints (MODEL.md §4).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Clearance {
+    /// `dual` (both joints worn) or `single` (left joint worn, right joint ideal).
+    #[serde(default)]
+    pub mode: ClearanceMode,
+    /// Radial clearance of the left joint (mm) at the start.
+    pub left_mm: f64,
+    /// Radial clearance of the right joint (mm); ignored for `single`. Default: `left_mm`.
+    #[serde(default)]
+    pub right_mm: Option<f64>,
+    /// Wear: clearance growth per kilometre driven (mm/km), applied to every worn joint.
+    #[serde(default)]
+    pub growth_mm_per_km: f64,
+}
+
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum ClearanceMode {
+    #[default]
+    Dual,
+    Single,
+}
+
+/// The drive cycle: a start speed and a list of segments run in order.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Drive {
+    /// Speed at t = 0 (km/h).
+    pub start_speed_kmh: f64,
+    /// Acceleration used to reach a cruise speed above the current one (g). Drivers re-accelerate
+    /// at 0.1–0.25 g.
+    #[serde(default = "default_accel_g")]
+    pub accel_g: f64,
+    /// Deceleration used to reach a cruise speed below the current one without a braking event
+    /// (engine braking / light pedal, g).
+    #[serde(default = "default_coast_g")]
+    pub coast_g: f64,
+    #[serde(rename = "segment")]
+    pub segments: Vec<Segment>,
+}
+
+fn default_accel_g() -> f64 {
+    0.15
+}
+fn default_coast_g() -> f64 {
+    0.05
+}
+
+/// One drive-cycle segment.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Segment {
+    /// Reach `speed_kmh` (accelerating at `drive.accel_g` or coasting at `drive.coast_g`), then
+    /// hold it for `duration_s`.
+    Cruise { speed_kmh: f64, duration_s: f64 },
+    /// A braking event from the current speed.
+    Brake(Brake),
+    /// Stand still for `duration_s` (only valid at zero speed).
+    Stand { duration_s: f64 },
+}
+
+/// A braking event: ramp-in to `decel_g`, hold, ramp-out; either for `duration_s` or to a stop.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Brake {
+    /// Plateau deceleration (g), 0.3–0.8 for the events the monitor analyses.
+    pub decel_g: f64,
+    /// Ramp-in time from 0 to the plateau (s); MODEL.md §6 uses 0.3 s.
+    #[serde(default = "default_ramp_s")]
+    pub ramp_in_s: f64,
+    /// Ramp-out time from the plateau back to 0 (s), for events that do not stop.
+    #[serde(default = "default_ramp_s")]
+    pub ramp_out_s: f64,
+    /// Total event length including ramps (s). Absent: brake to a stop.
+    #[serde(default)]
+    pub duration_s: Option<f64>,
+    /// After a stop, how long the driver keeps the pedal pressed at standstill (s).
+    #[serde(default = "default_hold_s")]
+    pub hold_s: f64,
+}
+
+fn default_ramp_s() -> f64 {
+    0.3
+}
+fn default_hold_s() -> f64 {
+    1.0
+}
+
+/// Excitation of the steering system (MODEL.md §7).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Excitation {
+    /// Residual wheel unbalance per front wheel (kg·m); MODEL.md §7 uses 2e-3.
+    #[serde(default = "default_unbalance")]
+    pub unbalance_kgm: f64,
+    /// Road-noise steer moment σ at 55 km/h (N·m); MODEL.md §7 uses 0.2. 0 disables it.
+    #[serde(default = "default_road_noise")]
+    pub road_noise_nm: f64,
+}
+
+fn default_unbalance() -> f64 {
+    2e-3
+}
+fn default_road_noise() -> f64 {
+    0.2
+}
+
+impl Default for Excitation {
+    fn default() -> Self {
+        Excitation {
+            unbalance_kgm: default_unbalance(),
+            road_noise_nm: default_road_noise(),
+        }
+    }
+}
+
+/// Small, slow driver steering inputs (lane keeping), added at the steering wheel.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Driver {
+    /// RMS of the lane-keeping steering-wheel angle (deg).
+    #[serde(default = "default_driver_rms")]
+    pub steer_rms_deg: f64,
+    /// Correlation time of the lane-keeping input (s): larger = slower corrections.
+    #[serde(default = "default_driver_tau")]
+    pub steer_tau_s: f64,
+    /// Constant steering-wheel offset (deg): road crown, slight misalignment.
+    #[serde(default)]
+    pub steer_offset_deg: f64,
+}
+
+fn default_driver_rms() -> f64 {
+    1.0
+}
+fn default_driver_tau() -> f64 {
+    2.0
+}
+
+impl Default for Driver {
+    fn default() -> Self {
+        Driver {
+            steer_rms_deg: default_driver_rms(),
+            steer_tau_s: default_driver_tau(),
+            steer_offset_deg: 0.0,
+        }
+    }
+}
+
+/// Sensor and ECU imperfections on the reference bus.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Sensors {
+    /// White noise on the steering-wheel angle before quantisation (deg RMS).
+    #[serde(default = "default_sas_noise")]
+    pub steer_noise_deg: f64,
+    /// White noise on the brake pressure (bar RMS).
+    #[serde(default = "default_pressure_noise")]
+    pub brake_pressure_noise_bar: f64,
+    /// Master-cylinder pressure per unit of demanded deceleration (bar per g).
+    #[serde(default = "default_bar_per_g")]
+    pub brake_bar_per_g: f64,
+    /// White noise on each wheel speed (km/h RMS).
+    #[serde(default = "default_wheel_noise")]
+    pub wheel_speed_noise_kmh: f64,
+    /// Tyre rolling-radius tolerance: each wheel's scale error is drawn uniformly in ±this (%).
+    #[serde(default = "default_radius_tol")]
+    pub wheel_radius_tolerance_pct: f64,
+    /// White noise on the longitudinal acceleration (m/s² RMS).
+    #[serde(default = "default_accel_noise")]
+    pub accel_noise_mps2: f64,
+    /// Send-period jitter: each frame leaves at its nominal time plus a Gaussian offset with this
+    /// standard deviation (ms), clipped to a quarter period.
+    #[serde(default = "default_jitter_ms")]
+    pub jitter_ms: f64,
+}
+
+fn default_sas_noise() -> f64 {
+    0.01
+}
+fn default_pressure_noise() -> f64 {
+    0.2
+}
+fn default_bar_per_g() -> f64 {
+    90.0
+}
+fn default_wheel_noise() -> f64 {
+    0.03
+}
+fn default_radius_tol() -> f64 {
+    0.3
+}
+fn default_accel_noise() -> f64 {
+    0.05
+}
+fn default_jitter_ms() -> f64 {
+    0.2
+}
+
+impl Default for Sensors {
+    fn default() -> Self {
+        Sensors {
+            steer_noise_deg: default_sas_noise(),
+            brake_pressure_noise_bar: default_pressure_noise(),
+            brake_bar_per_g: default_bar_per_g(),
+            wheel_speed_noise_kmh: default_wheel_noise(),
+            wheel_radius_tolerance_pct: default_radius_tol(),
+            accel_noise_mps2: default_accel_noise(),
+            jitter_ms: default_jitter_ms(),
+        }
+    }
+}
+
+/// Optional faults for robustness tests. All off by default.
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Faults {
+    /// Probability that any one frame is lost (never reaches the bus).
+    #[serde(default)]
+    pub drop_probability: f64,
+    /// Probability that a frame carrying a checksum is sent with a wrong one.
+    #[serde(default)]
+    pub bad_checksum_probability: f64,
+    /// Stuck sensors: the message keeps being sent (counter and checksum valid) but its values
+    /// freeze at what they were when the fault began.
+    #[serde(default)]
+    pub stuck: Vec<StuckFault>,
+    /// Bus-off periods: the named ECU (or every ECU) sends nothing.
+    #[serde(default)]
+    pub bus_off: Vec<BusOffFault>,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct StuckFault {
+    /// Message name in the reference DBC.
+    pub message: String,
+    pub start_s: f64,
+    pub duration_s: f64,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct BusOffFault {
+    /// Message name in the reference DBC; absent: the whole bus.
+    #[serde(default)]
+    pub message: Option<String>,
+    pub start_s: f64,
+    pub duration_s: f64,
+}
+
+impl Scenario {
+    /// Parse and validate scenario text. `origin` names the source in error messages.
+    pub fn parse(text: &str, origin: &str) -> anyhow::Result<Scenario> {
+        let sc: Scenario =
+            toml::from_str(text).with_context(|| format!("invalid scenario {origin}"))?;
+        sc.validate()
+            .with_context(|| format!("invalid scenario {origin}"))?;
+        Ok(sc)
+    }
+
+    /// Read, parse and validate a scenario file; the name defaults to the file stem.
+    pub fn load(path: &Path) -> anyhow::Result<Scenario> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read scenario {}", path.display()))?;
+        let mut sc = Scenario::parse(&text, &path.display().to_string())?;
+        if sc.name.is_empty() {
+            sc.name = path
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default();
+        }
+        Ok(sc)
+    }
+
+    /// The vehicle file resolved against the scenario file's directory.
+    pub fn vehicle_path(&self, scenario_path: &Path) -> Option<PathBuf> {
+        self.vehicle.as_ref().map(|v| {
+            if v.is_absolute() {
+                v.clone()
+            } else {
+                scenario_path
+                    .parent()
+                    .unwrap_or_else(|| Path::new("."))
+                    .join(v)
+            }
+        })
+    }
+
+    /// Right clearance (mm) at the start: `right_mm`, else `left_mm`; 0 for `single`.
+    pub fn right_clearance_mm(&self) -> f64 {
+        match self.clearance.mode {
+            ClearanceMode::Single => 0.0,
+            ClearanceMode::Dual => self.clearance.right_mm.unwrap_or(self.clearance.left_mm),
+        }
+    }
+
+    /// Check ranges and cross-field rules; the error names the key.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        fn range(key: &str, v: f64, lo: f64, hi: f64) -> anyhow::Result<()> {
+            if !(v.is_finite() && v >= lo && v <= hi) {
+                bail!("{key} = {v} is outside [{lo}, {hi}]");
+            }
+            Ok(())
+        }
+        range("step_s", self.step_s, 1e-6, 1e-3)?;
+        range("start_unix_s", self.start_unix_s, 0.0, 4e9)?;
+        range("clearance.left_mm", self.clearance.left_mm, 0.0, 2.0)?;
+        if let Some(r) = self.clearance.right_mm {
+            range("clearance.right_mm", r, 0.0, 2.0)?;
+        }
+        range(
+            "clearance.growth_mm_per_km",
+            self.clearance.growth_mm_per_km,
+            0.0,
+            1.0,
+        )?;
+        let d = &self.drive;
+        range("drive.start_speed_kmh", d.start_speed_kmh, 0.0, 250.0)?;
+        range("drive.accel_g", d.accel_g, 0.01, 0.6)?;
+        range("drive.coast_g", d.coast_g, 0.01, 0.3)?;
+        if d.segments.is_empty() {
+            bail!("drive.segment: at least one segment is needed");
+        }
+        let mut v_kmh = d.start_speed_kmh;
+        for (i, s) in d.segments.iter().enumerate() {
+            let key = |f: &str| format!("drive.segment[{i}].{f}");
+            match s {
+                Segment::Cruise {
+                    speed_kmh,
+                    duration_s,
+                } => {
+                    range(&key("speed_kmh"), *speed_kmh, 0.0, 250.0)?;
+                    range(&key("duration_s"), *duration_s, 0.0, 3600.0)?;
+                    v_kmh = *speed_kmh;
+                }
+                Segment::Brake(b) => {
+                    range(&key("decel_g"), b.decel_g, 0.05, 1.0)?;
+                    range(&key("ramp_in_s"), b.ramp_in_s, 0.0, 5.0)?;
+                    range(&key("ramp_out_s"), b.ramp_out_s, 0.0, 5.0)?;
+                    range(&key("hold_s"), b.hold_s, 0.0, 60.0)?;
+                    if let Some(dur) = b.duration_s {
+                        range(&key("duration_s"), dur, 0.0, 600.0)?;
+                        if dur < b.ramp_in_s + b.ramp_out_s {
+                            bail!(
+                                "{} = {dur} is shorter than ramp_in_s + ramp_out_s = {}",
+                                key("duration_s"),
+                                b.ramp_in_s + b.ramp_out_s
+                            );
+                        }
+                    } else {
+                        v_kmh = 0.0;
+                    }
+                    if v_kmh <= 0.0 && b.duration_s.is_some() {
+                        // Braking at standstill is allowed (it just holds the car).
+                    }
+                }
+                Segment::Stand { duration_s } => {
+                    range(&key("duration_s"), *duration_s, 0.0, 3600.0)?;
+                    if v_kmh > 0.0 {
+                        bail!(
+                            "{}: `stand` needs the car stopped, but the speed before it is {v_kmh} km/h \
+                             (add a braking event to a stop, or a cruise at 0 km/h)",
+                            key("kind")
+                        );
+                    }
+                }
+            }
+        }
+        let x = &self.excitation;
+        range("excitation.unbalance_kgm", x.unbalance_kgm, 0.0, 0.05)?;
+        range("excitation.road_noise_nm", x.road_noise_nm, 0.0, 20.0)?;
+        range("driver.steer_rms_deg", self.driver.steer_rms_deg, 0.0, 30.0)?;
+        range("driver.steer_tau_s", self.driver.steer_tau_s, 0.05, 100.0)?;
+        range(
+            "driver.steer_offset_deg",
+            self.driver.steer_offset_deg,
+            -90.0,
+            90.0,
+        )?;
+        let s = &self.sensors;
+        range("sensors.steer_noise_deg", s.steer_noise_deg, 0.0, 10.0)?;
+        range(
+            "sensors.brake_pressure_noise_bar",
+            s.brake_pressure_noise_bar,
+            0.0,
+            50.0,
+        )?;
+        range("sensors.brake_bar_per_g", s.brake_bar_per_g, 1.0, 300.0)?;
+        range(
+            "sensors.wheel_speed_noise_kmh",
+            s.wheel_speed_noise_kmh,
+            0.0,
+            10.0,
+        )?;
+        range(
+            "sensors.wheel_radius_tolerance_pct",
+            s.wheel_radius_tolerance_pct,
+            0.0,
+            5.0,
+        )?;
+        range("sensors.accel_noise_mps2", s.accel_noise_mps2, 0.0, 10.0)?;
+        range("sensors.jitter_ms", s.jitter_ms, 0.0, 5.0)?;
+        let f = &self.faults;
+        range("faults.drop_probability", f.drop_probability, 0.0, 1.0)?;
+        range(
+            "faults.bad_checksum_probability",
+            f.bad_checksum_probability,
+            0.0,
+            1.0,
+        )?;
+        for (i, st) in f.stuck.iter().enumerate() {
+            range(&format!("faults.stuck[{i}].start_s"), st.start_s, 0.0, 1e6)?;
+            range(
+                &format!("faults.stuck[{i}].duration_s"),
+                st.duration_s,
+                0.0,
+                1e6,
+            )?;
+        }
+        for (i, b) in f.bus_off.iter().enumerate() {
+            range(&format!("faults.bus_off[{i}].start_s"), b.start_s, 0.0, 1e6)?;
+            range(
+                &format!("faults.bus_off[{i}].duration_s"),
+                b.duration_s,
+                0.0,
+                1e6,
+            )?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MINIMAL: &str = r#"
+seed = 7
+[clearance]
+left_mm = 0.2
+[drive]
+start_speed_kmh = 55
+[[drive.segment]]
+kind = "cruise"
+speed_kmh = 55
+duration_s = 1.0
+[[drive.segment]]
+kind = "brake"
+decel_g = 0.5
+"#;
+
+    #[test]
+    fn minimal_scenario_gets_model_defaults() {
+        let sc = Scenario::parse(MINIMAL, "test").unwrap();
+        assert_eq!(sc.seed, 7);
+        assert_eq!(sc.step_s, 1e-4);
+        assert_eq!(sc.clearance.mode, ClearanceMode::Dual);
+        assert_eq!(sc.right_clearance_mm(), 0.2);
+        assert_eq!(sc.excitation.unbalance_kgm, 2e-3);
+        match &sc.drive.segments[1] {
+            Segment::Brake(b) => {
+                assert_eq!(b.ramp_in_s, 0.3);
+                assert!(b.duration_s.is_none());
+            }
+            other => panic!("expected brake, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn unknown_key_is_named() {
+        let text = MINIMAL.replace("left_mm = 0.2", "left_mm = 0.2\nleft_mn = 0.3");
+        let err = format!("{:#}", Scenario::parse(&text, "test").unwrap_err());
+        assert!(err.contains("left_mn"), "{err}");
+    }
+
+    #[test]
+    fn unknown_key_inside_segment_is_named() {
+        let text = MINIMAL.replace("decel_g = 0.5", "decel_g = 0.5\ndecel = 0.4");
+        let err = format!("{:#}", Scenario::parse(&text, "test").unwrap_err());
+        assert!(err.contains("decel"), "{err}");
+    }
+
+    #[test]
+    fn unknown_segment_kind_is_named() {
+        let text = MINIMAL.replace("kind = \"brake\"", "kind = \"brak\"");
+        let err = format!("{:#}", Scenario::parse(&text, "test").unwrap_err());
+        assert!(err.contains("brak"), "{err}");
+    }
+
+    #[test]
+    fn out_of_range_value_names_key() {
+        let text = MINIMAL.replace("decel_g = 0.5", "decel_g = 3.0");
+        let err = format!("{:#}", Scenario::parse(&text, "test").unwrap_err());
+        assert!(err.contains("drive.segment[1].decel_g"), "{err}");
+    }
+
+    #[test]
+    fn stand_while_moving_is_rejected() {
+        let text = MINIMAL.replace(
+            "kind = \"brake\"\ndecel_g = 0.5",
+            "kind = \"stand\"\nduration_s = 1.0",
+        );
+        let err = format!("{:#}", Scenario::parse(&text, "test").unwrap_err());
+        assert!(err.contains("stand"), "{err}");
+    }
+
+    #[test]
+    fn single_clearance_has_ideal_right_joint() {
+        let text = MINIMAL.replace("left_mm = 0.2", "mode = \"single\"\nleft_mm = 0.2");
+        let sc = Scenario::parse(&text, "test").unwrap();
+        assert_eq!(sc.right_clearance_mm(), 0.0);
+    }
+}

@@ -1,0 +1,303 @@
+//! [`LogReader`]: a [`CanSource`] that replays a CAN log file, streaming, in constant memory
+//! whatever the file's size. It recognises the format by content, then by extension:
+//! a `LOGG` signature is Vector BLF; a Vector ASC header (`date`, `base`, `Begin Triggerblock`)
+//! is ASC; otherwise `.blf` / `.asc` extensions decide, and everything else is read as
+//! can-utils `candump -L`.
+//!
+//! Policy lives here, not in [`crate::wire`]: a malformed line or record is counted in
+//! [`SourceStats::malformed`], and the first [`DEFAULT_MAX_REPORTS`] are reported through
+//! [`CanSource::take_skips`] as `file:line` with the parser's reason; replay always goes on.
+//! A last line without its newline that does not parse is reported as half-written.
+//!
+//! Not here: what a frame means (decoding), or pacing a replay in real time.
+
+use super::lines::{Line, LineReader};
+use super::{CanSource, Skip, SourceStats};
+use crate::wire::asc::{AscLine, AscParser};
+use crate::wire::blf::{BlfEvent, BlfReader};
+use crate::wire::candump::{self, Parsed};
+use crate::wire::{Frame, FrameKind};
+use std::fs::File;
+use std::io::{self, Read};
+use std::path::Path;
+
+/// How many skips a reader reports in detail (all are counted).
+pub const DEFAULT_MAX_REPORTS: usize = 100;
+
+/// The log formats [`LogReader`] reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LogFormat {
+    /// can-utils `candump -L`.
+    Candump,
+    /// Vector ASC (text).
+    Asc,
+    /// Vector BLF (binary, zlib-compressed containers).
+    Blf,
+}
+
+impl LogFormat {
+    /// Decide the format from the first bytes of the file and its name.
+    pub fn detect(name: &Path, head: &[u8]) -> LogFormat {
+        if head.starts_with(b"LOGG") {
+            return LogFormat::Blf;
+        }
+        let text = head.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(head);
+        let first = text
+            .split(|&b| b == b'\n')
+            .map(|l| l.trim_ascii())
+            .find(|l| !l.is_empty())
+            .unwrap_or(b"");
+        let lower = |l: &[u8]| l.to_ascii_lowercase();
+        let f = lower(first);
+        if f.starts_with(b"date ")
+            || f.starts_with(b"base ")
+            || f.starts_with(b"begin triggerblock")
+            || f.starts_with(b"// version")
+        {
+            return LogFormat::Asc;
+        }
+        if f.starts_with(b"(") || f.starts_with(b"dropcount") {
+            return LogFormat::Candump;
+        }
+        match name
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(|e| e.to_ascii_lowercase())
+            .as_deref()
+        {
+            Some("blf") => LogFormat::Blf,
+            Some("asc") => LogFormat::Asc,
+            _ => LogFormat::Candump,
+        }
+    }
+}
+
+type BoxRead = Box<dyn Read + Send>;
+
+enum Kind {
+    Candump(LineReader<BoxRead>),
+    Asc(LineReader<BoxRead>, AscParser),
+    Blf(BlfReader<BoxRead>),
+}
+
+/// Replays a candump, ASC or BLF log as a [`CanSource`].
+pub struct LogReader {
+    name: String,
+    format: LogFormat,
+    kind: Kind,
+    stats: SourceStats,
+    skips: Vec<Skip>,
+    reported: usize,
+    max_reports: usize,
+    last_t: Option<i64>,
+}
+
+/// What one step of a reader produced, owned (so the line buffer's borrow can end).
+enum Step {
+    Frame(Frame),
+    Nothing,
+    Dropped(u64),
+    Skipped(u64, String),
+    Malformed(u64, String),
+    End,
+}
+
+impl LogReader {
+    /// Open a log file, detecting its format.
+    pub fn open(path: impl AsRef<Path>) -> io::Result<LogReader> {
+        let path = path.as_ref();
+        let file = File::open(path).map_err(|e| {
+            io::Error::new(e.kind(), format!("cannot open {}: {e}", path.display()))
+        })?;
+        Self::from_reader(file, path)
+    }
+
+    /// Read a log from any reader; `name` is used for format detection (extension) and in
+    /// skip reports.
+    pub fn from_reader<R: Read + Send + 'static>(
+        mut reader: R,
+        name: impl AsRef<Path>,
+    ) -> io::Result<LogReader> {
+        let name = name.as_ref();
+        let mut head = vec![0u8; 512];
+        let mut n = 0;
+        while n < head.len() {
+            match reader.read(&mut head[n..]) {
+                Ok(0) => break,
+                Ok(k) => n += k,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(e),
+            }
+        }
+        head.truncate(n);
+        let format = LogFormat::detect(name, &head);
+        let chained: BoxRead = Box::new(io::Cursor::new(head).chain(reader));
+        Ok(Self::with_format(chained, name, format))
+    }
+
+    /// Read a log in a known format.
+    pub fn with_format(
+        reader: Box<dyn Read + Send>,
+        name: impl AsRef<Path>,
+        format: LogFormat,
+    ) -> LogReader {
+        let kind = match format {
+            LogFormat::Candump => Kind::Candump(LineReader::new(reader)),
+            LogFormat::Asc => Kind::Asc(LineReader::new(reader), AscParser::new()),
+            LogFormat::Blf => Kind::Blf(BlfReader::new(reader)),
+        };
+        LogReader {
+            name: name.as_ref().display().to_string(),
+            format,
+            kind,
+            stats: SourceStats::default(),
+            skips: Vec::new(),
+            reported: 0,
+            max_reports: DEFAULT_MAX_REPORTS,
+            last_t: None,
+        }
+    }
+
+    /// Report at most `n` skips in detail (all are still counted).
+    pub fn with_max_reports(mut self, n: usize) -> LogReader {
+        self.max_reports = n;
+        self
+    }
+
+    /// The detected format.
+    pub fn format(&self) -> LogFormat {
+        self.format
+    }
+
+    /// For ASC and BLF: the wall-clock start of the measurement in ns since the Unix epoch (as
+    /// the file's header states it, read as UTC), which the frame timestamps include.
+    pub fn start_epoch_ns(&self) -> Option<i64> {
+        match &self.kind {
+            Kind::Candump(_) => None,
+            Kind::Asc(_, p) => p.start_epoch_ns(),
+            Kind::Blf(b) => b.start_epoch_ns(),
+        }
+    }
+
+    fn report(&mut self, where_: u64, unit: &str, reason: String) {
+        if self.reported < self.max_reports {
+            self.reported += 1;
+            self.skips.push(Skip {
+                location: format!("{}:{unit}{where_}", self.name),
+                reason,
+            });
+        }
+    }
+
+    fn step(&mut self) -> io::Result<Step> {
+        match &mut self.kind {
+            Kind::Candump(lines) => {
+                let line = match lines.next_line()? {
+                    None => return Ok(Step::End),
+                    Some(l) => l,
+                };
+                let (bytes, terminated) = match line {
+                    Line::TooLong => {
+                        return Ok(Step::Malformed(
+                            lines.line_no(),
+                            "line longer than 256 KiB".into(),
+                        ))
+                    }
+                    Line::Text { bytes, terminated } => (bytes, terminated),
+                };
+                Ok(match candump::parse_line(bytes) {
+                    Ok(Parsed::Frame(f)) => Step::Frame(f),
+                    Ok(Parsed::Comment) => Step::Nothing,
+                    Ok(Parsed::DropCount(n)) => Step::Dropped(n),
+                    Ok(Parsed::SkippedXl) => {
+                        Step::Skipped(lines.line_no(), "CAN XL frame (not supported)".into())
+                    }
+                    Err(e) => Step::Malformed(lines.line_no(), half_written(e, terminated)),
+                })
+            }
+            Kind::Asc(lines, parser) => {
+                let line = match lines.next_line()? {
+                    None => return Ok(Step::End),
+                    Some(l) => l,
+                };
+                let (bytes, terminated) = match line {
+                    Line::TooLong => {
+                        return Ok(Step::Malformed(
+                            lines.line_no(),
+                            "line longer than 256 KiB".into(),
+                        ))
+                    }
+                    Line::Text { bytes, terminated } => (bytes, terminated),
+                };
+                Ok(match parser.parse_line(bytes) {
+                    Ok(AscLine::Frame(f)) => Step::Frame(f),
+                    Ok(AscLine::Header) => Step::Nothing,
+                    Ok(AscLine::OtherEvent) => Step::Skipped(0, String::new()),
+                    Err(e) => Step::Malformed(lines.line_no(), half_written(e, terminated)),
+                })
+            }
+            Kind::Blf(blf) => Ok(match blf.next_event()? {
+                Some(Ok(BlfEvent::Frame(f))) => Step::Frame(f),
+                Some(Ok(BlfEvent::Other)) => Step::Skipped(0, String::new()),
+                Some(Err(e)) => Step::Malformed(blf.object_index(), e.to_string()),
+                None => Step::End,
+            }),
+        }
+    }
+}
+
+fn half_written(e: impl std::fmt::Display, terminated: bool) -> String {
+    if terminated {
+        e.to_string()
+    } else {
+        format!("half-written last line (no newline at end of file): {e}")
+    }
+}
+
+impl CanSource for LogReader {
+    fn next_frame(&mut self) -> io::Result<Option<Frame>> {
+        loop {
+            match self.step()? {
+                Step::Frame(f) => {
+                    self.stats.frames += 1;
+                    if f.kind == FrameKind::Error {
+                        self.stats.error_frames += 1;
+                    }
+                    if let Some(last) = self.last_t {
+                        if f.t_ns < last {
+                            self.stats.backwards_timestamps += 1;
+                        }
+                    }
+                    self.last_t = Some(f.t_ns);
+                    return Ok(Some(f));
+                }
+                Step::Nothing => {}
+                Step::Dropped(n) => self.stats.dropped += n,
+                Step::Skipped(at, reason) => {
+                    self.stats.skipped += 1;
+                    if !reason.is_empty() {
+                        self.report(at, "", reason);
+                    }
+                }
+                Step::Malformed(at, reason) => {
+                    self.stats.malformed += 1;
+                    let unit = if self.format == LogFormat::Blf {
+                        "object "
+                    } else {
+                        ""
+                    };
+                    self.report(at, unit, reason);
+                }
+                Step::End => return Ok(None),
+            }
+        }
+    }
+
+    fn stats(&self) -> SourceStats {
+        self.stats.clone()
+    }
+
+    fn take_skips(&mut self) -> Vec<Skip> {
+        std::mem::take(&mut self.skips)
+    }
+}

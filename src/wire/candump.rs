@@ -1,0 +1,789 @@
+//! The can-utils `candump -L` log line format (also what `canplayer` reads): parse one line,
+//! emit one frame.
+//!
+//! Grammar accepted by [`parse_line`] (one line, with or without its `\n` / `\r\n`):
+//!
+//! ```text
+//! line      := ws* ( frame-line | comment | blank | dropcount ) ws*
+//! frame-line:= '(' SEC '.' FRAC ')' ws+ IFACE ws+ FRAME ( ws+ ('R'|'T') )?
+//!              SEC = 1–12 decimal digits, FRAC = exactly 6 (µs) or 9 (ns) digits
+//!              IFACE = 1–15 bytes of UTF-8 without spaces or tabs
+//! ws        := ' ' | '\t'                           (any run of them)
+//! comment   := '#' anything ;  blank := nothing
+//! dropcount := 'DROPCOUNT' anything, the first decimal number in it is the count
+//! FRAME     := ID '#' DATA ( '_' DLC )?               classic data (DLC suffix 9–F needs 8 bytes)
+//!            | ID '#' ('R'|'r') LEN? ( '_' DLC )?     remote request, LEN one digit 0–8
+//!            | ID '##' FLAGS DATA                     CAN FD; FLAGS one hex digit, 1=BRS 2=ESI 4=FDF
+//!            | ID '###' anything                      CAN XL: recognised and skipped
+//! ID        := 3 hex digits (standard, ≤ 0x7FF) | 8 hex digits (extended, ≤ 0x1FFFFFFF;
+//!              0x20000000 set = error frame whose low bits are the SocketCAN error class)
+//! DATA      := ( '.'? HEX HEX )*                     any case
+//! ```
+//!
+//! The digit count of the ID alone decides standard versus extended, as in can-utils.
+//!
+//! Not here: reading files, counting, or deciding what to do with a bad line; that is
+//! [`crate::source::log`]. This module only describes exactly what is wrong with a line.
+
+use super::frame::{fd_dlc_to_len, fd_len_to_dlc, Frame, FrameKind, IfaceName};
+use std::io;
+
+/// SocketCAN's error-frame flag in the 32-bit CAN ID (`CAN_ERR_FLAG`).
+pub const CAN_ERR_FLAG: u32 = 0x2000_0000;
+/// Mask of the error class bits (`CAN_ERR_MASK`).
+pub const CAN_ERR_MASK: u32 = 0x1FFF_FFFF;
+
+/// What one line holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Parsed {
+    /// A CAN frame (data, remote, or error).
+    Frame(Frame),
+    /// A comment (`# ...`) or a blank line.
+    Comment,
+    /// A `DROPCOUNT` line: candump reports this many frames dropped by the kernel.
+    DropCount(u64),
+    /// A CAN XL frame (`ID###...`), recognised but not represented by [`Frame`].
+    SkippedXl,
+}
+
+/// What is wrong with a line, and where (1-based byte column).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("column {col}: {kind}")]
+pub struct CandumpError {
+    pub col: usize,
+    pub kind: ErrorKind,
+}
+
+/// The ways a candump line can be wrong.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ErrorKind {
+    #[error("expected '(' opening the timestamp, found {}", show(*.0))]
+    NoTimestamp(u8),
+    #[error("timestamp seconds: expected 1 to 12 decimal digits")]
+    TimestampSeconds,
+    #[error("timestamp does not fit 64-bit nanoseconds (beyond the year 2262)")]
+    TimestampRange,
+    #[error("timestamp: expected '.' after the seconds, found {}", show(*.0))]
+    TimestampDot(u8),
+    #[error("timestamp fraction must have 6 (µs) or 9 (ns) digits, found {0}")]
+    TimestampFraction(usize),
+    #[error("timestamp: expected ')' after the fraction, found {}", show(*.0))]
+    TimestampClose(u8),
+    #[error("missing interface name after the timestamp")]
+    NoIface,
+    #[error("interface name is {0} bytes; Linux allows at most 15")]
+    IfaceTooLong(usize),
+    #[error("interface name is not valid UTF-8")]
+    IfaceNotUtf8,
+    #[error("missing frame after the interface name")]
+    NoFrame,
+    #[error("frame has no '#' separating the CAN ID from the data")]
+    NoHash,
+    #[error("CAN ID must be 3 hex digits (standard) or 8 (extended), found {0} characters")]
+    IdDigits(usize),
+    #[error("invalid hex digit {} in {field}", show(*.found))]
+    Hex { field: &'static str, found: u8 },
+    #[error("standard CAN ID {0:#05X} is above 0x7FF")]
+    StdIdRange(u32),
+    #[error("extended CAN ID {0:#010X} has flag bits above bit 29 set (only 0x20000000, the error flag, is allowed)")]
+    ExtIdFlags(u32),
+    #[error("an error frame cannot be a remote or CAN FD frame")]
+    ErrorFrameKind,
+    #[error("odd number of hex digits in the data: half a byte at the end")]
+    HalfByte,
+    #[error("more than {0} data bytes")]
+    TooLong(usize),
+    #[error("{0} bytes is not a CAN FD length (0-8, 12, 16, 20, 24, 32, 48 or 64)")]
+    FdLength(usize),
+    #[error("CAN FD frame needs a flags digit after '##'")]
+    NoFdFlags,
+    #[error("unknown CAN FD flag bits in {0:#X} (known: 1 = BRS, 2 = ESI, 4 = FDF)")]
+    FdFlags(u8),
+    #[error("remote frame length must be one digit 0-8, found {}", show(*.0))]
+    RemoteLen(u8),
+    #[error("DLC suffix '_{}' needs exactly 8 data bytes and a DLC of 9 to F", show(*.0))]
+    DlcSuffix(u8),
+    #[error("unexpected text after the frame (only an R or T direction may follow)")]
+    Trailing,
+    #[error("DROPCOUNT line without a count")]
+    DropCountMissing,
+}
+
+fn show(b: u8) -> String {
+    if b == 0 {
+        "end of line".to_string()
+    } else if b.is_ascii_graphic() {
+        format!("'{}'", b as char)
+    } else {
+        format!("byte {b:#04x}")
+    }
+}
+
+const INVALID: u8 = 0xFF;
+
+/// Hex digit value by byte, `INVALID` for non-hex bytes.
+static HEX: [u8; 256] = {
+    let mut t = [INVALID; 256];
+    let mut i = 0;
+    while i < 10 {
+        t[b'0' as usize + i] = i as u8;
+        i += 1;
+    }
+    let mut i = 0;
+    while i < 6 {
+        t[b'a' as usize + i] = 10 + i as u8;
+        t[b'A' as usize + i] = 10 + i as u8;
+        i += 1;
+    }
+    t
+};
+
+#[inline]
+fn is_ws(b: u8) -> bool {
+    b == b' ' || b == b'\t'
+}
+
+/// A cursor over one line; `peek` gives 0 past the end.
+struct Cur<'a> {
+    s: &'a [u8],
+    i: usize,
+}
+
+impl<'a> Cur<'a> {
+    #[inline]
+    fn peek(&self) -> u8 {
+        self.s.get(self.i).copied().unwrap_or(0)
+    }
+    #[inline]
+    fn err(&self, kind: ErrorKind) -> CandumpError {
+        CandumpError {
+            col: self.i + 1,
+            kind,
+        }
+    }
+    #[inline]
+    fn skip_ws(&mut self) -> usize {
+        let start = self.i;
+        while self.i < self.s.len() && is_ws(self.s[self.i]) {
+            self.i += 1;
+        }
+        self.i - start
+    }
+    /// The next run of non-whitespace bytes.
+    #[inline]
+    fn token(&mut self) -> &'a [u8] {
+        let start = self.i;
+        while self.i < self.s.len() && !is_ws(self.s[self.i]) {
+            self.i += 1;
+        }
+        &self.s[start..self.i]
+    }
+}
+
+/// Parse one line (its `\n` or `\r\n` may be included).
+pub fn parse_line(line: &[u8]) -> Result<Parsed, CandumpError> {
+    let mut end = line.len();
+    while end > 0 && matches!(line[end - 1], b'\n' | b'\r' | b' ' | b'\t') {
+        end -= 1;
+    }
+    let mut c = Cur {
+        s: &line[..end],
+        i: 0,
+    };
+    c.skip_ws();
+    match c.peek() {
+        0 | b'#' => return Ok(Parsed::Comment),
+        b'(' => {}
+        b'D' if c.s[c.i..].starts_with(b"DROPCOUNT") => return parse_dropcount(&mut c),
+        other => return Err(c.err(ErrorKind::NoTimestamp(other))),
+    }
+    c.i += 1;
+    let t_ns = parse_timestamp(&mut c)?;
+
+    if c.skip_ws() == 0 || c.i >= c.s.len() {
+        return Err(c.err(ErrorKind::NoIface));
+    }
+    let iface_col = c.i;
+    let iface_tok = c.token();
+    let iface = match IfaceName::from_bytes(iface_tok) {
+        Some(n) => n,
+        None => {
+            let kind = if iface_tok.len() > 15 {
+                ErrorKind::IfaceTooLong(iface_tok.len())
+            } else {
+                ErrorKind::IfaceNotUtf8
+            };
+            return Err(CandumpError {
+                col: iface_col + 1,
+                kind,
+            });
+        }
+    };
+    if c.skip_ws() == 0 || c.i >= c.s.len() {
+        return Err(c.err(ErrorKind::NoFrame));
+    }
+    let mut frame = Frame::empty(t_ns);
+    frame.iface = iface;
+    let frame_start = c.i;
+    let frame_end = frame_start + c.token().len();
+    let mut fc = Cur {
+        s: &c.s[..frame_end],
+        i: frame_start,
+    };
+    if parse_frame(&mut fc, &mut frame)? {
+        return Ok(Parsed::SkippedXl);
+    }
+    c.i = frame_end;
+    // Optional direction.
+    if c.skip_ws() > 0 && c.i < c.s.len() {
+        match c.peek() {
+            b'R' | b'T' | b'r' | b't' => c.i += 1,
+            _ => return Err(c.err(ErrorKind::Trailing)),
+        }
+        c.skip_ws();
+    }
+    if c.i < c.s.len() {
+        return Err(c.err(ErrorKind::Trailing));
+    }
+    Ok(Parsed::Frame(frame))
+}
+
+fn parse_dropcount(c: &mut Cur) -> Result<Parsed, CandumpError> {
+    let rest = &c.s[c.i..];
+    let Some(start) = rest.iter().position(u8::is_ascii_digit) else {
+        c.i = c.s.len();
+        return Err(c.err(ErrorKind::DropCountMissing));
+    };
+    let mut n: u64 = 0;
+    for &b in rest[start..].iter().take_while(|b| b.is_ascii_digit()) {
+        n = n.saturating_mul(10).saturating_add((b - b'0') as u64);
+    }
+    Ok(Parsed::DropCount(n))
+}
+
+#[inline]
+fn parse_timestamp(c: &mut Cur) -> Result<i64, CandumpError> {
+    let start = c.i;
+    let mut sec: i64 = 0;
+    while c.peek().is_ascii_digit() {
+        if c.i - start >= 12 {
+            return Err(c.err(ErrorKind::TimestampSeconds));
+        }
+        sec = sec * 10 + (c.peek() - b'0') as i64;
+        c.i += 1;
+    }
+    if c.i == start {
+        return Err(c.err(ErrorKind::TimestampSeconds));
+    }
+    if c.peek() != b'.' {
+        return Err(c.err(ErrorKind::TimestampDot(c.peek())));
+    }
+    c.i += 1;
+    let fstart = c.i;
+    let mut frac: i64 = 0;
+    while c.peek().is_ascii_digit() && c.i - fstart < 10 {
+        frac = frac * 10 + (c.peek() - b'0') as i64;
+        c.i += 1;
+    }
+    let n = c.i - fstart;
+    let frac_ns = match n {
+        6 => frac * 1000,
+        9 => frac,
+        _ => {
+            return Err(CandumpError {
+                col: fstart + 1,
+                kind: ErrorKind::TimestampFraction(n),
+            })
+        }
+    };
+    if c.peek() != b')' {
+        return Err(c.err(ErrorKind::TimestampClose(c.peek())));
+    }
+    c.i += 1;
+    sec.checked_mul(1_000_000_000)
+        .and_then(|ns| ns.checked_add(frac_ns))
+        .ok_or(CandumpError {
+            col: start + 1,
+            kind: ErrorKind::TimestampRange,
+        })
+}
+
+/// Parse hex digits `s` (already length-checked) as an ID.
+#[inline]
+fn hex_id(c: &Cur, start: usize, n: usize) -> Result<u32, CandumpError> {
+    let mut v: u32 = 0;
+    for k in 0..n {
+        let b = c.s[start + k];
+        let d = HEX[b as usize];
+        if d == INVALID {
+            return Err(CandumpError {
+                col: start + k + 1,
+                kind: ErrorKind::Hex {
+                    field: "the CAN ID",
+                    found: b,
+                },
+            });
+        }
+        v = (v << 4) | d as u32;
+    }
+    Ok(v)
+}
+
+/// Parse the frame token into `f`. Returns `Ok(true)` for a CAN XL frame (skipped).
+#[inline]
+fn parse_frame(c: &mut Cur, f: &mut Frame) -> Result<bool, CandumpError> {
+    let start = c.i;
+    let tok = &c.s[start..];
+    let Some(hash) = memchr::memchr(b'#', tok) else {
+        return Err(c.err(ErrorKind::NoHash));
+    };
+    if tok[hash..].starts_with(b"###") {
+        return Ok(true);
+    }
+    let id = match hash {
+        3 | 8 => hex_id(c, start, hash)?,
+        n => return Err(c.err(ErrorKind::IdDigits(n))),
+    };
+    if hash == 3 {
+        if id > 0x7FF {
+            return Err(c.err(ErrorKind::StdIdRange(id)));
+        }
+        f.id = id;
+    } else if id & !CAN_ERR_MASK == CAN_ERR_FLAG {
+        f.kind = FrameKind::Error;
+        f.id = id & CAN_ERR_MASK;
+    } else if id & !CAN_ERR_MASK != 0 {
+        return Err(c.err(ErrorKind::ExtIdFlags(id)));
+    } else {
+        f.id = id;
+        f.extended = true;
+    }
+    c.i = start + hash + 1;
+    let is_err = f.kind == FrameKind::Error;
+    match c.peek() {
+        b'#' => {
+            if is_err {
+                return Err(c.err(ErrorKind::ErrorFrameKind));
+            }
+            c.i += 1;
+            let b = c.peek();
+            let flags = HEX[b as usize];
+            if b == 0 {
+                return Err(c.err(ErrorKind::NoFdFlags));
+            }
+            if flags == INVALID {
+                return Err(c.err(ErrorKind::Hex {
+                    field: "the CAN FD flags",
+                    found: b,
+                }));
+            }
+            if flags > 7 {
+                return Err(c.err(ErrorKind::FdFlags(flags)));
+            }
+            c.i += 1;
+            f.fd = true;
+            f.brs = flags & 1 != 0;
+            f.esi = flags & 2 != 0;
+            let len = parse_data(c, f, 64)?;
+            // Only the lengths a DLC can express exist on the bus.
+            if fd_dlc_to_len(fd_len_to_dlc(len)) != len {
+                return Err(CandumpError {
+                    col: start + hash + 4,
+                    kind: ErrorKind::FdLength(len),
+                });
+            }
+            f.len = len as u8;
+            f.dlc = fd_len_to_dlc(len);
+            if c.i < c.s.len() {
+                return Err(c.err(ErrorKind::Hex {
+                    field: "the data",
+                    found: c.peek(),
+                }));
+            }
+        }
+        b'R' | b'r' => {
+            if is_err {
+                return Err(c.err(ErrorKind::ErrorFrameKind));
+            }
+            c.i += 1;
+            f.kind = FrameKind::Remote;
+            let b = c.peek();
+            let mut len = 0u8;
+            if b != 0 && b != b'_' {
+                if !(b'0'..=b'8').contains(&b) {
+                    return Err(c.err(ErrorKind::RemoteLen(b)));
+                }
+                len = b - b'0';
+                c.i += 1;
+            }
+            f.len = len;
+            f.dlc = len;
+            parse_dlc_suffix(c, f)?;
+        }
+        _ => {
+            let len = parse_data(c, f, 8)?;
+            f.len = len as u8;
+            f.dlc = len as u8;
+            parse_dlc_suffix(c, f)?;
+        }
+    }
+    Ok(false)
+}
+
+#[inline]
+fn parse_dlc_suffix(c: &mut Cur, f: &mut Frame) -> Result<(), CandumpError> {
+    match c.peek() {
+        0 => Ok(()),
+        b'_' => {
+            c.i += 1;
+            let b = c.peek();
+            let d = HEX[b as usize];
+            if f.len != 8 || f.kind == FrameKind::Error || d == INVALID || d < 9 {
+                return Err(c.err(ErrorKind::DlcSuffix(b)));
+            }
+            c.i += 1;
+            f.dlc = d;
+            if c.i < c.s.len() {
+                return Err(c.err(ErrorKind::Trailing));
+            }
+            Ok(())
+        }
+        b => Err(c.err(ErrorKind::Hex {
+            field: "the data",
+            found: b,
+        })),
+    }
+}
+
+/// Data bytes with optional '.' separators, up to `max`; stops at '_' or the end.
+#[inline]
+fn parse_data(c: &mut Cur, f: &mut Frame, max: usize) -> Result<usize, CandumpError> {
+    let s = c.s;
+    let mut i = c.i;
+    let mut n = 0usize;
+    loop {
+        if i < s.len() && s[i] == b'.' {
+            i += 1;
+        }
+        if i >= s.len() {
+            break;
+        }
+        let hi = HEX[s[i] as usize];
+        if hi == INVALID {
+            break;
+        }
+        if i + 1 >= s.len() {
+            c.i = i;
+            return Err(c.err(ErrorKind::HalfByte));
+        }
+        let lo = HEX[s[i + 1] as usize];
+        if lo == INVALID {
+            c.i = i + 1;
+            let b = s[i + 1];
+            if b == b'.' || b == b'_' {
+                return Err(c.err(ErrorKind::HalfByte));
+            }
+            return Err(c.err(ErrorKind::Hex {
+                field: "the data",
+                found: b,
+            }));
+        }
+        if n == max {
+            c.i = i;
+            return Err(c.err(ErrorKind::TooLong(max)));
+        }
+        f.data[n] = (hi << 4) | lo;
+        n += 1;
+        i += 2;
+    }
+    c.i = i;
+    Ok(n)
+}
+
+const HEX_UPPER: &[u8; 16] = b"0123456789ABCDEF";
+
+/// Format `f` as one canonical `candump -L` line (with `\n`) into `out`; returns its length.
+///
+/// Canonical means: 6 fraction digits when the timestamp is a whole microsecond, else 9;
+/// upper-case hex; 3-digit IDs for standard and 8-digit for extended frames; no byte
+/// separators; the `_<dlc>` suffix only when the DLC is 9–F. Fails (`InvalidInput`) for what the
+/// format cannot hold: a negative timestamp or an empty interface name.
+pub fn format_frame(f: &Frame, out: &mut [u8; 256]) -> io::Result<usize> {
+    if f.t_ns < 0 {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            "candump format cannot hold a negative timestamp",
+        ));
+    }
+    if f.iface.is_empty() {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            "candump format needs an interface name; the frame has none",
+        ));
+    }
+    let mut n = 0usize;
+    let mut put = |b: u8| {
+        out[n] = b;
+        n += 1;
+    };
+    put(b'(');
+    let sec = (f.t_ns / 1_000_000_000) as u64;
+    let ns = (f.t_ns % 1_000_000_000) as u64;
+    let mut digits = [0u8; 20];
+    let mut k = 0;
+    let mut s = sec;
+    loop {
+        digits[k] = b'0' + (s % 10) as u8;
+        k += 1;
+        s /= 10;
+        if s == 0 {
+            break;
+        }
+    }
+    while k > 0 {
+        k -= 1;
+        put(digits[k]);
+    }
+    put(b'.');
+    let (frac, nd) = if ns % 1000 == 0 {
+        (ns / 1000, 6)
+    } else {
+        (ns, 9)
+    };
+    let mut div = 10u64.pow(nd - 1);
+    for _ in 0..nd {
+        put(b'0' + ((frac / div) % 10) as u8);
+        div /= 10;
+    }
+    put(b')');
+    put(b' ');
+    for &b in f.iface.as_bytes() {
+        put(b);
+    }
+    put(b' ');
+    let (id, idlen) = match f.kind {
+        FrameKind::Error => ((f.id & CAN_ERR_MASK) | CAN_ERR_FLAG, 8),
+        _ if f.extended => (f.id & CAN_ERR_MASK, 8),
+        _ => (f.id & 0x7FF, 3),
+    };
+    for k in (0..idlen).rev() {
+        put(HEX_UPPER[((id >> (4 * k)) & 0xF) as usize]);
+    }
+    put(b'#');
+    let len = (f.len as usize).min(if f.fd { 64 } else { 8 });
+    match f.kind {
+        FrameKind::Remote if !f.fd => {
+            put(b'R');
+            if len > 0 {
+                put(b'0' + len as u8);
+            }
+        }
+        _ => {
+            if f.fd {
+                put(b'#');
+                put(HEX_UPPER[(f.brs as usize) | ((f.esi as usize) << 1)]);
+            }
+            for &b in &f.data[..len] {
+                put(HEX_UPPER[(b >> 4) as usize]);
+                put(HEX_UPPER[(b & 0xF) as usize]);
+            }
+        }
+    }
+    if !f.fd && f.kind != FrameKind::Error && len == 8 && (9..=15).contains(&f.dlc) {
+        put(b'_');
+        put(HEX_UPPER[f.dlc as usize]);
+    }
+    put(b'\n');
+    Ok(n)
+}
+
+/// Write `f` as one canonical `candump -L` line (see [`format_frame`]).
+pub fn write_frame<W: io::Write>(w: &mut W, f: &Frame) -> io::Result<()> {
+    let mut buf = [0u8; 256];
+    let n = format_frame(f, &mut buf)?;
+    w.write_all(&buf[..n])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(line: &str) -> Frame {
+        match parse_line(line.as_bytes()) {
+            Ok(Parsed::Frame(f)) => f,
+            other => panic!("{line:?}: {other:?}"),
+        }
+    }
+
+    fn err(line: &str) -> ErrorKind {
+        match parse_line(line.as_bytes()) {
+            Err(e) => e.kind,
+            other => panic!("{line:?} parsed: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn classic_standard_and_extended() {
+        let f = frame("(46408.584930) can0 260#08FFFB0000001884\n");
+        assert_eq!(f.t_ns, 46_408_584_930_000);
+        assert_eq!(f.iface.as_str(), "can0");
+        assert_eq!((f.id, f.extended, f.len, f.dlc), (0x260, false, 8, 8));
+        assert_eq!(f.payload(), &[0x08, 0xFF, 0xFB, 0, 0, 0, 0x18, 0x84]);
+        let f = frame("(1.000000000) vcan0 0000012A#\r\n");
+        assert_eq!(
+            (f.id, f.extended, f.len, f.t_ns),
+            (0x12A, true, 0, 1_000_000_000)
+        );
+        // Digit count decides: 8 digits is extended even for a small value.
+        let f = frame("(0.000001) c 00000001#01");
+        assert!(f.extended);
+        assert_eq!(f.t_ns, 1000);
+    }
+
+    #[test]
+    fn separators_case_whitespace_direction() {
+        let f = frame("  (1.500000)\t\tcan1   1aB#de.AD.be.ef  T  ");
+        assert_eq!(f.id, 0x1AB);
+        assert_eq!(f.payload(), &[0xDE, 0xAD, 0xBE, 0xEF]);
+        let f = frame("(1.500000) can1 1AB#DEAD R");
+        assert_eq!(f.len, 2);
+    }
+
+    #[test]
+    fn remote_frames() {
+        let f = frame("(1.000000) can0 123#R");
+        assert_eq!((f.kind, f.len), (FrameKind::Remote, 0));
+        let f = frame("(1.000000) can0 123#r8");
+        assert_eq!((f.kind, f.len, f.dlc), (FrameKind::Remote, 8, 8));
+        let f = frame("(1.000000) can0 123#R8_E");
+        assert_eq!((f.len, f.dlc), (8, 14));
+        assert_eq!(err("(1.000000) can0 123#R9"), ErrorKind::RemoteLen(b'9'));
+    }
+
+    #[test]
+    fn dlc_suffix() {
+        let f = frame("(1.000000) can0 123#1122334455667788_9");
+        assert_eq!((f.len, f.dlc), (8, 9));
+        let f = frame("(1.000000) can0 123#1122334455667788_f");
+        assert_eq!(f.dlc, 15);
+        assert_eq!(err("(1.000000) can0 123#11_9"), ErrorKind::DlcSuffix(b'9'));
+        assert_eq!(
+            err("(1.000000) can0 123#1122334455667788_8"),
+            ErrorKind::DlcSuffix(b'8')
+        );
+    }
+
+    #[test]
+    fn can_fd() {
+        let f = frame("(1.000000) can0 123##1112233");
+        assert!(f.fd && f.brs && !f.esi);
+        assert_eq!(f.payload(), &[0x11, 0x22, 0x33]);
+        let f = frame("(1.000000) can0 12345678##3");
+        assert!(f.fd && f.brs && f.esi && f.extended);
+        let f = frame("(1.000000) can0 123##4000102030405060708090A0B");
+        assert_eq!((f.len, f.dlc), (12, 9));
+        assert!(!f.brs);
+        assert_eq!(
+            err("(1.000000) can0 123##0000102030405060708"),
+            ErrorKind::FdLength(9)
+        );
+        assert_eq!(err("(1.000000) can0 123##8"), ErrorKind::FdFlags(8));
+        assert_eq!(err("(1.000000) can0 123##"), ErrorKind::NoFdFlags);
+        let long = format!("(1.000000) can0 123##0{}", "00".repeat(65));
+        assert_eq!(err(&long), ErrorKind::TooLong(64));
+    }
+
+    #[test]
+    fn error_frames() {
+        let f = frame("(1.000000) can0 20000080#0000000000000000");
+        assert_eq!(f.kind, FrameKind::Error);
+        assert_eq!(f.id, 0x80);
+        assert!(!f.extended);
+        assert_eq!(err("(1.000000) can0 20000080#R"), ErrorKind::ErrorFrameKind);
+        assert_eq!(
+            err("(1.000000) can0 40000080#00"),
+            ErrorKind::ExtIdFlags(0x4000_0080)
+        );
+    }
+
+    #[test]
+    fn other_lines() {
+        assert_eq!(parse_line(b"").unwrap(), Parsed::Comment);
+        assert_eq!(parse_line(b"  \r\n").unwrap(), Parsed::Comment);
+        assert_eq!(parse_line(b"# hello").unwrap(), Parsed::Comment);
+        assert_eq!(
+            parse_line(b"DROPCOUNT: dropped 3 CAN frames on 'can0' socket (total drops 7)\n")
+                .unwrap(),
+            Parsed::DropCount(3)
+        );
+        assert_eq!(
+            parse_line(b"(1.000000) can0 123###80:00:00000000#AA").unwrap(),
+            Parsed::SkippedXl
+        );
+    }
+
+    #[test]
+    fn errors_say_what_is_wrong() {
+        assert_eq!(err("1.000000 can0 123#"), ErrorKind::NoTimestamp(b'1'));
+        assert_eq!(err("(1.0000) can0 123#"), ErrorKind::TimestampFraction(4));
+        assert_eq!(err("(1,000000) can0 123#"), ErrorKind::TimestampDot(b','));
+        assert_eq!(err("(1.000000 can0 123#"), ErrorKind::TimestampClose(b' '));
+        assert_eq!(err("(1.000000)"), ErrorKind::NoIface);
+        assert_eq!(err("(1.000000) can0"), ErrorKind::NoFrame);
+        assert_eq!(err("(1.000000) can0 123"), ErrorKind::NoHash);
+        assert_eq!(err("(1.000000) can0 1234#00"), ErrorKind::IdDigits(4));
+        assert_eq!(err("(1.000000) can0 800#00"), ErrorKind::StdIdRange(0x800));
+        assert_eq!(err("(1.000000) can0 123#112"), ErrorKind::HalfByte);
+        assert_eq!(
+            err("(1.000000) can0 123#11G2"),
+            ErrorKind::Hex {
+                field: "the data",
+                found: b'G'
+            }
+        );
+        assert_eq!(
+            err("(1.000000) can0 12G#11"),
+            ErrorKind::Hex {
+                field: "the CAN ID",
+                found: b'G'
+            }
+        );
+        assert_eq!(
+            err("(1.000000) can0 123#112233445566778899"),
+            ErrorKind::TooLong(8)
+        );
+        assert_eq!(err("(1.000000) can0 123#11 X"), ErrorKind::Trailing);
+        assert_eq!(
+            err("(1.000000) averyveryverylongname 123#11"),
+            ErrorKind::IfaceTooLong(21)
+        );
+        // A half-written line is malformed, and the message names the column.
+        let e = parse_line(b"(1.000000) can0 123#11223").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "column 25: odd number of hex digits in the data: half a byte at the end"
+        );
+    }
+
+    #[test]
+    fn writer_is_canonical() {
+        let f = frame("(1.500000) can1 1ab#de.ad  T");
+        let mut out = Vec::new();
+        write_frame(&mut out, &f).unwrap();
+        assert_eq!(out, b"(1.500000) can1 1AB#DEAD\n");
+        for line in [
+            "(1.000000001) can0 12345678##3AABB\n",
+            "(0.000000) can0 123#R8_E\n",
+            "(7.000000) can0 20000004#0000080000000000\n",
+            "(7.000000) can0 7FF#1122334455667788_9\n",
+            "(7.000000) can0 000#R\n",
+        ] {
+            let mut out = Vec::new();
+            write_frame(&mut out, &frame(line)).unwrap();
+            assert_eq!(String::from_utf8(out).unwrap(), line);
+        }
+        let mut f = frame("(1.000000) can0 123#");
+        f.t_ns = -1;
+        assert!(write_frame(&mut Vec::new(), &f).is_err());
+    }
+}
