@@ -16,7 +16,8 @@ pub trait Plant {
     fn t_s(&self) -> f64;
     /// Advance one step. Must not allocate.
     fn step(&mut self);
-    /// Longitudinal demand for the next steps (m/s², + = decelerating). MODEL.md §6.
+    /// Longitudinal demand for the next steps (m/s², + = decelerating). The plant fades braking
+    /// demand by `min(1, v/v_stop)` (MODEL.md §6) so the car stops rather than reverses.
     fn set_decel_demand(&mut self, a_mps2: f64);
     /// Current joint clearances (m), for wear growth (MODEL.md §4).
     fn set_clearance_m(&mut self, left_m: f64, right_m: f64);
@@ -82,9 +83,9 @@ impl LaneKeeping {
 }
 
 /// A plant without steering dynamics, for testing the sensor and ground-truth pipeline against
-/// known values: a point mass that follows the demand exactly, whose steering wheel oscillates
-/// as `amplitude·sin(2π·f·t)` while it decelerates by more than 1 m/s² and rests at zero
-/// otherwise.
+/// known values: a point mass that follows the demand exactly (with the MODEL.md §6 fade near
+/// standstill), whose
+/// steering wheel oscillates as `amplitude·sin(2π·f·t)` throughout.
 #[derive(Clone, Debug)]
 pub struct PointMass {
     t: f64,
@@ -92,6 +93,7 @@ pub struct PointMass {
     n: u64,
     v: f64,
     a_dem: f64,
+    accel: f64,
     pub shimmy_amplitude_rad: f64,
     pub shimmy_hz: f64,
     steer: f64,
@@ -105,6 +107,7 @@ impl PointMass {
             n: 0,
             v: v0_mps,
             a_dem: 0.0,
+            accel: 0.0,
             shimmy_amplitude_rad,
             shimmy_hz,
             steer: 0.0,
@@ -117,14 +120,18 @@ impl Plant for PointMass {
         self.t
     }
     fn step(&mut self) {
-        self.v = (self.v - self.a_dem * self.h).max(0.0);
+        let a = if self.a_dem > 0.0 {
+            self.a_dem * (self.v / crate::drive::V_STOP_MPS).min(1.0)
+        } else {
+            self.a_dem
+        };
+        let v1 = (self.v - a * self.h).max(0.0);
+        self.accel = (v1 - self.v) / self.h;
+        self.v = v1;
         self.n += 1;
         self.t = self.n as f64 * self.h;
-        self.steer = if self.a_dem > 1.0 {
-            self.shimmy_amplitude_rad * (2.0 * std::f64::consts::PI * self.shimmy_hz * self.t).sin()
-        } else {
-            0.0
-        };
+        self.steer = self.shimmy_amplitude_rad
+            * (2.0 * std::f64::consts::PI * self.shimmy_hz * self.t).sin();
     }
     fn set_decel_demand(&mut self, a_mps2: f64) {
         self.a_dem = a_mps2;
@@ -134,11 +141,7 @@ impl Plant for PointMass {
         self.v
     }
     fn accel_mps2(&self) -> f64 {
-        if self.v > 0.0 {
-            -self.a_dem
-        } else {
-            0.0
-        }
+        self.accel
     }
     fn steering_wheel_rad(&self) -> f64 {
         self.steer
