@@ -17,6 +17,9 @@ enum Cmd {
     Decode(shimmy::cli::decode::Args),
     /// Workshop inspection report (HTML or JSON) from shimmyd's journal, state, or CAN logs.
     Report(shimmy::cli::report::Args),
+    Simulate(shimmy::cli::simulate::Args),
+    /// Rerun the source article's experiments on the model and regenerate docs/REPRODUCTION.md.
+    Reproduce(shimmy::cli::reproduce::Args),
 }
 
 fn main() {
@@ -24,6 +27,8 @@ fn main() {
     let result: anyhow::Result<()> = match cli.cmd {
         Cmd::Decode(a) => shimmy::cli::decode::run(a),
         Cmd::Report(a) => shimmy::cli::report::run(a),
+        Cmd::Simulate(a) => shimmy::cli::simulate::run(a),
+        Cmd::Reproduce(a) => shimmy::cli::reproduce::run(a),
     };
     if let Err(e) = result {
         eprintln!("shimmy: error: {e:#}");

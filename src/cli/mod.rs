@@ -3,3 +3,5 @@
 
 pub mod decode;
 pub mod report;
+pub mod simulate;
+pub mod reproduce;
