@@ -3,5 +3,5 @@
 
 pub mod decode;
 pub mod report;
-pub mod simulate;
 pub mod reproduce;
+pub mod simulate;
