@@ -55,9 +55,9 @@ const BRAKE_ON_PA: f64 = 3.0e5;
 /// Steering history kept for event traces (s) and its fixed capacity (samples).
 const TRACE_HISTORY_S: f64 = 30.0;
 const TRACE_CAP: usize = 8192;
-/// Trace kept around an event: before the onset and after the end (s).
+/// Trace kept with an event: from this long before the onset to the end of the event (the
+/// event is journaled when it ends, so nothing after it is known yet) (s).
 const TRACE_PRE_S: f64 = 1.0;
-const TRACE_POST_S: f64 = 1.0;
 
 fn log(msg: impl std::fmt::Display) {
     eprintln!("shimmyd: {msg}");
@@ -248,7 +248,7 @@ impl SteerHistory {
     /// `{t0, t_s: [...], angle_deg: [...]}` around an event (times relative to its onset).
     fn trace(&self, e: &EventSummary) -> serde_json::Value {
         let lo = e.t_start - TRACE_PRE_S;
-        let hi = e.t_end + TRACE_POST_S;
+        let hi = e.t_end;
         let (mut ts, mut xs) = (Vec::new(), Vec::new());
         for &(t, a) in &self.buf {
             let t = t as f64 * 1e-9;

@@ -33,6 +33,19 @@ pub struct Trace {
 }
 
 /// One point of the clearance trend.
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn when_formats_epoch_and_relative_times() {
+        assert_eq!(super::when(1_767_225_611.14), "2026-01-01 00:00:11.1 UTC");
+        assert_eq!(
+            super::when(1_078_012_800.0 + 86_399.0),
+            "2004-02-29 23:59:59.0 UTC"
+        );
+        assert_eq!(super::when(12.5), "12.50 s");
+    }
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct TrendPoint {
     pub odometer_km: f64,
@@ -262,6 +275,33 @@ fn esc(s: &str) -> String {
         .replace('"', "&quot;")
 }
 
+/// A log time for people: UTC date and time for Unix-epoch times, plain seconds otherwise
+/// (logs with relative timestamps).
+pub fn when(t: f64) -> String {
+    if !(1.0e9..1.0e11).contains(&t) {
+        return format!("{t:.2} s");
+    }
+    let secs = t.floor() as i64;
+    let (days, sod) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Civil date from days since 1970-01-01 (H. Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02}.{:01} UTC",
+        sod / 3600,
+        sod / 60 % 60,
+        sod % 60,
+        ((t - t.floor()) * 10.0).floor() as u32
+    )
+}
+
 fn opt(v: Option<f64>, digits: usize) -> String {
     v.map_or("–".into(), |x| format!("{x:.digits$}"))
 }
@@ -457,10 +497,10 @@ td.l,th.l{{text-align:left}} .small{{color:#555;font-size:13px}} .alert{{backgro
     for a in &d.open_alerts {
         let _ = write!(
             s,
-            r#"<div class="alert"><b>Alert #{} {}</b> (raised at t = {:.1} s, {:.1} km; updated {} times): {}<br><span class="small">{}</span></div>"#,
+            r#"<div class="alert"><b>Alert #{} {}</b> (raised {}, at {:.1} km; updated {} times): {}<br><span class="small">{}</span></div>"#,
             a.id,
             a.kind.as_str(),
-            a.t_raised,
+            when(a.t_raised),
             a.odometer_km_raised,
             a.updates,
             esc(&a.summary),
@@ -481,10 +521,10 @@ td.l,th.l{{text-align:left}} .small{{color:#555;font-size:13px}} .alert{{backgro
         let e = &w.event;
         let _ = write!(
             s,
-            r#"<p><b>#{}</b> t = {:.2}–{:.2} s, {:.1} km/h, {:.2} g, amplitude {} deg (band-passed peak {} deg){}</p>"#,
+            r#"<p><b>#{}</b> {} for {:.1} s, from {:.1} km/h at {:.2} g: amplitude {} deg (band-passed peak {} deg){}</p>"#,
             i + 1,
-            e.t_start,
-            e.t_end,
+            when(e.t_start),
+            e.t_end - e.t_start,
             e.v0_kmh,
             e.decel_g,
             opt(e.sw_amplitude_deg, 3),
@@ -501,17 +541,17 @@ td.l,th.l{{text-align:left}} .small{{color:#555;font-size:13px}} .alert{{backgro
         } else {
             let _ = write!(
                 s,
-                r#"<div class="pair">{t}{f}</div><p class="small">Grey: measured angle; red: 3–25 Hz band-pass (MODEL.md §11); dashed: brake onset and end.</p>"#
+                r#"<div class="pair">{t}{f}</div><p class="small">Grey: measured angle; red: 3–25 Hz band-pass (MODEL.md §11); dashed: brake onset and end of the event; the trace starts 1 s before the onset.</p>"#
             );
         }
     }
-    s.push_str("<h2>All braking events</h2><table><tr><th>#</th><th>start (s)</th><th>duration (s)</th><th>speed (km/h)</th><th>decel (g)</th><th>amplitude (deg)</th><th>peak 3–25 Hz (deg)</th><th>odometer (km)</th><th class=\"l\">used</th></tr>");
+    s.push_str("<h2>All braking events</h2><table><tr><th>#</th><th class=\"l\">start</th><th>duration (s)</th><th>speed (km/h)</th><th>decel (g)</th><th>amplitude (deg)</th><th>peak 3–25 Hz (deg)</th><th>odometer (km)</th><th class=\"l\">used</th></tr>");
     for (i, e) in d.events.iter().enumerate() {
         let _ = write!(
             s,
-            r#"<tr><td>{}</td><td>{:.2}</td><td>{:.2}</td><td>{:.1}</td><td>{:.2}</td><td>{}</td><td>{}</td><td>{:.2}</td><td class="l">{}</td></tr>"#,
+            r#"<tr><td>{}</td><td class="l">{}</td><td>{:.2}</td><td>{:.1}</td><td>{:.2}</td><td>{}</td><td>{}</td><td>{:.2}</td><td class="l">{}</td></tr>"#,
             i + 1,
-            e.t_start,
+            when(e.t_start),
             e.t_end - e.t_start,
             e.v0_kmh,
             e.decel_g,

@@ -47,6 +47,8 @@ fn step(span: f64, n: f64) -> f64 {
 
 fn fmt_tick(v: f64, step: f64) -> String {
     let decimals = (-step.log10().floor()).max(0.0) as usize;
+    // Adding 0.0 turns -0.0 into 0.0 so no tick reads "-0".
+    let v = if v.abs() < step * 1e-6 { 0.0 } else { v } + 0.0;
     format!("{v:.decimals$}")
 }
 
@@ -62,8 +64,8 @@ impl Chart {
             }
         };
         Chart {
-            w: 640.0,
-            h: 260.0,
+            w: 470.0,
+            h: 250.0,
             x: fix(x),
             y: fix(y),
             x_label: x_label.into(),
