@@ -184,3 +184,62 @@ fn corrupt_state_is_moved_aside_and_reported() {
         .count();
     assert_eq!(aside, 1);
 }
+
+#[test]
+fn sighup_reloads_alerts_and_keeps_running_config_when_broken() {
+    let Some((log, dbc)) = rav4() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write_config(
+        dir.path(),
+        &dbc,
+        &workspace().join("config/mappings/toyota_rav4.toml"),
+    );
+    let good = std::fs::read_to_string(&cfg).unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_shimmyd"))
+        .arg("--config")
+        .arg(&cfg)
+        .arg("--replay")
+        .arg(&log)
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let signal = |sig: &str| {
+        assert!(Command::new("kill")
+            .args([sig, &child.id().to_string()])
+            .status()
+            .unwrap()
+            .success())
+    };
+    std::thread::sleep(Duration::from_millis(800));
+    std::fs::write(
+        &cfg,
+        good.replace("[log]", "[alerts]\nshimmy_deg = -1\n[log]"),
+    )
+    .unwrap();
+    signal("-HUP");
+    std::thread::sleep(Duration::from_millis(600));
+    std::fs::write(
+        &cfg,
+        good.replace("[log]", "[alerts]\nshimmy_deg = 0.3\n[log]"),
+    )
+    .unwrap();
+    signal("-HUP");
+    std::thread::sleep(Duration::from_millis(600));
+    signal("-TERM");
+    let status = child.wait().unwrap();
+    let mut err = String::new();
+    std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut err).unwrap();
+    assert!(status.success(), "{err}");
+    assert!(
+        err.contains("SIGHUP: configuration not reloaded")
+            && err.contains("alerts.shimmy_deg: must be > 0"),
+        "{err}"
+    );
+    assert!(err.contains("SIGHUP: configuration reloaded"), "{err}");
+    let recs = records(&dir.path().join("journal"));
+    let reload = recs
+        .iter()
+        .find(|r| r["type"] == "reload")
+        .expect("reload journaled");
+    assert_eq!(reload["alerts"]["shimmy_deg"], 0.3);
+}

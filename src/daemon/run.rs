@@ -137,7 +137,8 @@ impl Input {
                             // Sleep in short steps so signals are seen promptly.
                             while w0.elapsed() < due && !stop.load(Ordering::Relaxed) {
                                 std::thread::sleep(
-                                    due.saturating_sub(w0.elapsed()).min(Duration::from_millis(50)),
+                                    due.saturating_sub(w0.elapsed())
+                                        .min(Duration::from_millis(50)),
                                 );
                             }
                         }

@@ -20,7 +20,7 @@ use std::path::Path;
 use anyhow::{bail, Context};
 use serde::Serialize;
 
-use crate::alerts::{guidance, Alert, Kind};
+use crate::alerts::{Alert, Kind};
 use crate::daemon::config::AlertsSection;
 use crate::daemon::pipeline::{Estimate, EventSummary};
 
@@ -159,11 +159,7 @@ fn worst(events: &[EventSummary], traces: &[(f64, Trace)]) -> Vec<WorstEvent> {
 }
 
 fn guidance_lines(cfg: &AlertsSection, odometer_km: Option<f64>) -> Vec<String> {
-    let odo = odometer_km.unwrap_or(0.0);
-    vec![
-        guidance(Kind::Clearance, cfg, odo),
-        guidance(Kind::Shimmy55, cfg, odo),
-    ]
+    crate::alerts::routine_guidance(cfg, odometer_km.unwrap_or(0.0))
 }
 
 /// Builds the report from a journal directory.
