@@ -130,6 +130,8 @@ fn sigterm_mid_replay_stops_cleanly() {
         t0.elapsed()
     );
     assert!(err.contains("SIGTERM: stopping"), "{err}");
+    // The periodic counters line (interval 1 s in this config) was logged while running.
+    assert!(err.contains("last 1 s: frames="), "{err}");
     let recs = records(&dir.path().join("journal"));
     let stop = recs.last().unwrap();
     assert_eq!(stop["type"], "stop");
