@@ -571,11 +571,12 @@ impl Mapper {
 
     /// Advance the clock to `t_ns` without a frame (e.g. a live source that went quiet), so that
     /// silent messages are marked timed out and counted. Frames advance it themselves.
+    ///
+    /// The clock follows the frames even backwards (logs restart, sources get concatenated): a
+    /// message last seen "in the future" is not timed out, so a step back in time never counts
+    /// as an outage.
     pub fn advance(&mut self, t_ns: i64) {
-        let now = match self.now_ns {
-            Some(n) if n >= t_ns => n,
-            _ => t_ns,
-        };
+        let now = t_ns;
         self.now_ns = Some(now);
         for s in &mut self.slots {
             if let Some(last) = s.last_good_ns {
@@ -769,7 +770,7 @@ impl Mapper {
         }
     }
 
-    /// Latest frame time seen (or given to [`Mapper::advance`]).
+    /// Time of the last frame (or of the last [`Mapper::advance`]).
     pub fn now_ns(&self) -> Option<i64> {
         self.now_ns
     }
