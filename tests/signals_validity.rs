@@ -292,4 +292,12 @@ fn timestamps_going_backwards_are_not_outages() {
         }
     }
     assert!(m.stats().iter().all(|s| s.timeouts == 0), "{:?}", m.stats());
+    // The VEH counter restarts at 0 in the second copy: a new recording, not a gap.
+    assert!(
+        m.stats()
+            .iter()
+            .all(|s| s.counter_gaps == 0 && s.counter_errors == 0),
+        "{:?}",
+        m.stats()
+    );
 }

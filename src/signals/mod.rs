@@ -16,7 +16,9 @@
 //!   and the frame is used (its data are fresh and, where there is one, its checksum holds);
 //! * a frame too short for a mapped signal is counted and not used;
 //! * once no good frame has arrived for longer than the message's timeout, every quantity read
-//!   from it is invalid ([`Validity::TimedOut`]) and one timeout is counted.
+//!   from it is invalid ([`Validity::TimedOut`]) and one timeout is counted;
+//! * time follows the frames: a step back (a log restarting) is not an outage, and counter
+//!   tracking starts afresh after it.
 //!
 //! Not here: decoding bits (that is [`crate::dbc`]), reading frames ([`crate::source`]) or
 //! deciding what a braking event is (the daemon's business).
@@ -574,11 +576,15 @@ impl Mapper {
     ///
     /// The clock follows the frames even backwards (logs restart, sources get concatenated): a
     /// message last seen "in the future" is not timed out, so a step back in time never counts
-    /// as an outage.
+    /// as an outage. It does restart counter tracking: what follows is another recording.
     pub fn advance(&mut self, t_ns: i64) {
         let now = t_ns;
+        let went_back = self.now_ns.is_some_and(|prev| now < prev);
         self.now_ns = Some(now);
         for s in &mut self.slots {
+            if went_back {
+                s.last_counter = None;
+            }
             if let Some(last) = s.last_good_ns {
                 if !s.timed_out && now - last > s.timeout_ns {
                     s.timed_out = true;
