@@ -26,7 +26,7 @@
 pub mod checksum;
 pub mod mapping;
 
-use anyhow::{anyhow, bail};
+use anyhow::bail;
 use serde::Serialize;
 
 use crate::dbc::{Database, Message, Signal};
@@ -221,8 +221,8 @@ struct SteerQ {
 #[derive(Clone, Debug)]
 enum SpeedSrc {
     Signal(Sig),
-    /// Mean of up to four wheel speeds.
-    Wheels(heapless::Vec<Sig, 4>),
+    /// Mean of up to four wheel speeds (filled once, at construction).
+    Wheels(Vec<Sig>),
 }
 
 #[derive(Clone, Debug)]
@@ -467,12 +467,11 @@ impl Mapper {
                 SpeedSrc::Signal(sig)
             }
             None => {
-                let mut v = heapless::Vec::new();
+                let mut v = Vec::with_capacity(sp.wheel_signals.len());
                 for w in &sp.wheel_signals {
                     let sig = r.signal("speed.wheel_signals", msg, w)?;
                     r.check_unit("speed.unit", &sig, uname, ok);
-                    v.push(sig)
-                        .map_err(|_| anyhow!("speed.wheel_signals: at most 4"))?;
+                    v.push(sig);
                 }
                 SpeedSrc::Wheels(v)
             }
