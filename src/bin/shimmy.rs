@@ -13,12 +13,15 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Cmd {
+    /// Decode CAN logs (candump -L, ASC, BLF) with a DBC file, like `cantools decode`.
+    Decode(shimmy::cli::decode::Args),
     Simulate(shimmy::cli::simulate::Args),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result: anyhow::Result<()> = match cli.cmd {
+        Cmd::Decode(a) => shimmy::cli::decode::run(a),
         Cmd::Simulate(a) => shimmy::cli::simulate::run(a),
     };
     if let Err(e) = result {
