@@ -59,7 +59,7 @@ fn external_demand_drives_cruise_brake_and_acceleration() {
         ..Scenario::default()
     };
     let mut sim = Simulator::new(&p, &sc).unwrap();
-    let mut steps = |sim: &mut Simulator, n: usize| {
+    let steps = |sim: &mut Simulator, n: usize| {
         for _ in 0..n {
             sim.step();
         }
