@@ -373,7 +373,7 @@ pub fn markdown(r: &Results, figs: &[Figure]) -> String {
             );
         }
     }
-    let _ = writeln!(d, "\nConcentration: fraction of 1–40 Hz PSD power within ±0.5 Hz of the dominant peak. Entropies: Shannon entropy (bits) of the Morlet CWT energy of δ_sw over the braking window on a 48-frequency (1–40 Hz, log) × 100 Hz grid (whole map), and of its distribution over frequency only. Lyapunov: MODEL.md §11 twin runs (θ1'(0) × (1 + 1e-9), same noise), slope of ln‖Δ‖ of (θ1, θ2, θ1', θ2', X, X') each scaled by its RMS over 0.8–3 s, fitted over 0.8–3 s until ‖Δ‖ reaches 0.1. Poincaré: points closer than 10 % of the peak amplitude count as one.\n");
+    let _ = writeln!(d, "\nConcentration: fraction of 1–40 Hz PSD power within ±0.5 Hz of the dominant peak. Entropies: Shannon entropy (bits) of the Morlet CWT energy of δ_sw over the braking window on a 48-frequency (1–40 Hz, log) × 100 Hz grid (whole map), and of its distribution over frequency only. Lyapunov: MODEL.md §11 twin runs (θ1'(0) × (1 + 1e-9), same noise), slope of ln‖Δ‖ of (θ1, θ2, θ1', θ2', X, X') each scaled by its RMS over 0.8–3 s, fitted over 0.8–3 s until ‖Δ‖ reaches 0.1; where the twins saturate before 1.1 s the exponent is their mean growth rate from t = 0 to saturation ({} of {} runs here). Poincaré: points closer than 10 % of the peak amplitude count as one.\n", r.outcomes.iter().filter(|o| o.lyapunov_early).count(), r.outcomes.iter().filter(|o| o.lyapunov_per_s.is_some()).count());
     for k in ["time", "psd", "phase", "poincare", "cwt", "sweep"] {
         fig(&mut d, k);
     }
