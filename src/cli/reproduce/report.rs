@@ -313,6 +313,32 @@ pub fn markdown(r: &Results, figs: &[Figure]) -> String {
         }
         let _ = writeln!(d);
     }
+    {
+        // How many cells agree within 2 seed standard deviations (or 15 % where the spread is
+        // tiny), and the median relative difference.
+        let mut rels = Vec::new();
+        let mut within = 0;
+        for &(c, row) in REF13.iter() {
+            for (i, &v) in REF13_V.iter().enumerate() {
+                if let Some(m) = x.th1(c, v, JointMode::Dual) {
+                    let diff = (m.mean - row[i]).abs();
+                    rels.push(diff / row[i]);
+                    if diff <= (2.0 * m.std).max(0.15 * row[i]) {
+                        within += 1;
+                    }
+                }
+            }
+        }
+        rels.sort_by(|a, b| a.total_cmp(b));
+        if let Some(med) = rels.get(rels.len() / 2) {
+            let _ = writeln!(
+                d,
+                "\n{within} of {} cells agree within 2 seed std (or 15 % where the spread is smaller); median relative difference {:.0} %.",
+                rels.len(),
+                100.0 * med
+            );
+        }
+    }
     let _ = writeln!(d, "\nPeak band-passed steering-wheel angle δ_sw at 55 km/h (deg), ours / §13 (seed std there 0.02–0.05°):\n");
     let _ = writeln!(d, "| c (mm) | ours | §13 |\n|---|---|---|");
     for &c in &plan.sweep_c {
