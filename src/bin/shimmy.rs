@@ -15,12 +15,17 @@ struct Cli {
 enum Cmd {
     /// Decode CAN logs (candump -L, ASC, BLF) with a DBC file, like `cantools decode`.
     Decode(shimmy::cli::decode::Args),
+    Simulate(shimmy::cli::simulate::Args),
+    /// Rerun the source article's experiments on the model and regenerate docs/REPRODUCTION.md.
+    Reproduce(shimmy::cli::reproduce::Args),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result: anyhow::Result<()> = match cli.cmd {
         Cmd::Decode(a) => shimmy::cli::decode::run(a),
+        Cmd::Simulate(a) => shimmy::cli::simulate::run(a),
+        Cmd::Reproduce(a) => shimmy::cli::reproduce::run(a),
     };
     if let Err(e) = result {
         eprintln!("shimmy: error: {e:#}");

@@ -2,3 +2,5 @@
 //! a `run` function. Help text here is the manual.
 
 pub mod decode;
+pub mod simulate;
+pub mod reproduce;
