@@ -17,7 +17,9 @@
 pub mod analysis;
 pub mod cli;
 pub mod dbc;
+pub mod events;
 pub mod model;
+pub mod observer;
 pub mod shared_data;
 pub mod signals;
 pub mod source;
