@@ -100,7 +100,10 @@ mod tests {
         for k in 0..4 {
             r.offer(&cfg, 4.0 + k as f64, 55.0, 0.1);
         }
-        assert_eq!(r.hits(&cfg), 0, "old hits fall out of the window of 5");
+        assert_eq!(r.hits(&cfg), 1, "the 0.3 fell out of the window of 5");
+        assert!(!r.active(&cfg));
+        r.offer(&cfg, 9.0, 55.0, 0.1);
+        assert_eq!(r.hits(&cfg), 0, "and now the 0.25 too");
         assert!(!r.active(&cfg));
     }
 }
