@@ -2,14 +2,12 @@
 //! checksum sample, and the Toyota checksum on the real RAV4 log, including that a single flipped
 //! bit anywhere in a frame is caught.
 
+mod signals_common;
+
 use shimmy::shared_data::require_file;
 use shimmy::signals::checksum::{toyota_checksum, vw_mqb_crc8, ChecksumKind};
 
-fn hex(s: &str) -> Vec<u8> {
-    (0..s.len() / 2)
-        .map(|i| u8::from_str_radix(&s[2 * i..2 * i + 2], 16).unwrap())
-        .collect()
-}
+use signals_common::hex;
 
 #[test]
 fn vw_mqb_crc_matches_every_real_vw_frame() {
@@ -51,25 +49,17 @@ fn vw_mqb_crc_matches_every_real_vw_frame() {
     assert_eq!(checked, 368, "the sample holds 368 VW MQB frames");
 }
 
-/// (id, payload) of the classic data frames in a candump -L file, for the IDs asked for. Kept
-/// minimal on purpose: the log reader proper is tested elsewhere.
+/// (id, payload) of the RAV4 log's frames with the IDs asked for.
 fn rav4_frames(ids: &[u32]) -> Option<Vec<(u32, Vec<u8>)>> {
     let p = require_file("logs/comma2k19-rav4/rav4_2017_seg40_bus0.log")?;
-    let text = std::fs::read_to_string(p).unwrap();
-    let mut out = Vec::new();
-    for line in text.lines() {
-        let Some(frame) = line.split_whitespace().nth(2) else {
-            continue;
-        };
-        let Some((id, data)) = frame.split_once('#') else {
-            continue;
-        };
-        let id = u32::from_str_radix(id, 16).unwrap();
-        if ids.contains(&id) {
-            out.push((id, hex(data)));
-        }
-    }
-    Some(out)
+    let frames = signals_common::log_frames(&p);
+    Some(
+        frames
+            .iter()
+            .filter(|f| ids.contains(&f.id))
+            .map(|f| (f.id, f.payload().to_vec()))
+            .collect(),
+    )
 }
 
 #[test]

@@ -9,6 +9,7 @@
 
 pub mod chaos;
 pub mod cwt;
+pub mod features;
 pub mod filter;
 pub mod spectrum;
 pub mod sweep;

@@ -12,11 +12,16 @@ struct Cli {
 }
 
 #[derive(Subcommand, Debug)]
-enum Cmd {}
+enum Cmd {
+    /// Decode CAN logs (candump -L, ASC, BLF) with a DBC file, like `cantools decode`.
+    Decode(shimmy::cli::decode::Args),
+}
 
 fn main() {
     let cli = Cli::parse();
-    let result: anyhow::Result<()> = match cli.cmd {};
+    let result: anyhow::Result<()> = match cli.cmd {
+        Cmd::Decode(a) => shimmy::cli::decode::run(a),
+    };
     if let Err(e) = result {
         eprintln!("shimmy: error: {e:#}");
         std::process::exit(1);

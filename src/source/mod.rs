@@ -5,8 +5,10 @@
 //!
 //! Not here: decoding (see [`crate::dbc`]) or any decision about what a frame means.
 
+pub mod fault;
 pub mod lines;
 pub mod log;
+pub mod recorder;
 
 use crate::wire::Frame;
 

@@ -244,7 +244,7 @@ enum Conn {
     Down {
         since: Instant,
         next_try: Instant,
-        backoff: Duration,
+        /// Failed reconnect attempts so far.
         attempts: u32,
     },
 }
@@ -260,6 +260,7 @@ pub struct LiveSource {
     stop: Arc<AtomicBool>,
     events: EventHandler,
     clock_ts_reported: bool,
+    ever_connected: bool,
     /// Control-message buffer for `recvmsg`, allocated once.
     cmsg: Vec<u8>,
 }
@@ -306,7 +307,6 @@ impl LiveSource {
             conn: Conn::Down {
                 since: now,
                 next_try: now,
-                backoff: cfg.backoff_initial,
                 attempts: 0,
             },
             cfg,
@@ -316,6 +316,7 @@ impl LiveSource {
             stop: Arc::new(AtomicBool::new(false)),
             events: stderr_handler(),
             clock_ts_reported: false,
+            ever_connected: false,
             cmsg: nix::cmsg_space!(nix::sys::time::TimeSpec, u32),
         })
     }
@@ -411,7 +412,16 @@ impl LiveSource {
         }
     }
 
+    /// Delay before reconnect attempt `failed + 1`: the initial delay doubled per failure.
+    fn backoff(&self, failed: u32) -> Duration {
+        self.cfg
+            .backoff_initial
+            .saturating_mul(1u32 << failed.min(20))
+            .min(self.cfg.backoff_max)
+    }
+
     fn emit_connected(&mut self, attempts: u32, down_for: Duration) {
+        self.ever_connected = true;
         (self.events)(&LiveEvent::Connected {
             iface: &self.cfg.iface,
             attempts,
@@ -422,11 +432,10 @@ impl LiveSource {
     /// Drop the socket and schedule the first reconnect attempt.
     fn disconnect(&mut self, reason: &str) {
         let now = Instant::now();
-        let backoff = self.cfg.backoff_initial;
+        let backoff = self.backoff(0);
         self.conn = Conn::Down {
             since: now,
             next_try: now + backoff,
-            backoff,
             attempts: 0,
         };
         self.live.disconnects += 1;
@@ -443,7 +452,6 @@ impl LiveSource {
         let Conn::Down {
             since,
             next_try,
-            backoff,
             attempts,
         } = self.conn
         else {
@@ -460,19 +468,20 @@ impl LiveSource {
         match self.connect() {
             Ok(conn) => {
                 self.conn = conn;
-                if self.live.disconnects > 0 {
+                if self.ever_connected {
                     self.live.reconnects += 1;
+                    self.emit_connected(attempt, since.elapsed());
+                } else {
+                    self.emit_connected(0, Duration::ZERO);
                 }
-                self.emit_connected(attempt, since.elapsed());
                 true
             }
             Err(e) => {
                 self.live.failed_attempts += 1;
-                let next = (backoff * 2).min(self.cfg.backoff_max);
+                let backoff = self.backoff(attempt);
                 self.conn = Conn::Down {
                     since,
                     next_try: Instant::now() + backoff,
-                    backoff: next,
                     attempts: attempt,
                 };
                 let reason = e.to_string();
@@ -908,6 +917,46 @@ mod tests {
         cfg.ids = Some((0..600).map(FilterId::standard).collect());
         let err = LiveSource::open(cfg).err().unwrap();
         assert!(err.to_string().contains("at most 512"), "{err}");
+    }
+
+    #[test]
+    fn backoff_doubles_up_to_the_cap() {
+        let mut cfg = LiveConfig::new("vcan0");
+        cfg.backoff_initial = Duration::from_millis(100);
+        cfg.backoff_max = Duration::from_secs(1);
+        let s = LiveSource::open_waiting(cfg).unwrap();
+        let ms: Vec<u128> = [0, 1, 2, 3, 4, 40]
+            .iter()
+            .map(|&n| s.backoff(n).as_millis())
+            .collect();
+        assert_eq!(ms, [100, 200, 400, 800, 1000, 1000]);
+    }
+
+    #[test]
+    fn waiting_source_retries_reports_and_times_out() {
+        let mut cfg = LiveConfig::new("nosuchcan9");
+        cfg.read_timeout = Duration::from_millis(60);
+        cfg.backoff_initial = Duration::from_millis(5);
+        cfg.backoff_max = Duration::from_millis(20);
+        let mut s = LiveSource::open_waiting(cfg).unwrap();
+        let log = Arc::new(std::sync::Mutex::new(Vec::new()));
+        let log2 = log.clone();
+        s.on_event(move |e| log2.lock().unwrap().push(e.to_string()));
+        let t = Instant::now();
+        let e = s.next_frame().unwrap_err();
+        assert_eq!(e.kind(), io::ErrorKind::TimedOut);
+        assert!(t.elapsed() < Duration::from_secs(1));
+        assert!(!s.is_connected());
+        let st = s.live_stats();
+        assert!(st.failed_attempts >= 2, "{st:?}");
+        assert_eq!((st.timeouts, st.reconnects), (1, 0));
+        let log = log.lock().unwrap();
+        assert!(
+            log[0].contains("nosuchcan9: reconnect attempt 1 failed"),
+            "{log:?}"
+        );
+        s.stop_handle().store(true, Ordering::Relaxed);
+        assert!(s.next_frame().unwrap().is_none());
     }
 
     #[test]

@@ -135,9 +135,9 @@ impl AscParser {
         let t_tok = tk.next().unwrap_or(b"");
         let t_rel = parse_time_ns(t_tok).ok_or_else(|| AscError::Timestamp(lossy(t_tok)))?;
         let t_ns = if self.relative {
-            self.last_t_ns + t_rel
+            self.last_t_ns.saturating_add(t_rel)
         } else {
-            self.start_ns.unwrap_or(0) + t_rel
+            self.start_ns.unwrap_or(0).saturating_add(t_rel)
         };
         self.last_t_ns = t_ns;
         let Some(tok) = tk.next() else {
@@ -412,7 +412,7 @@ fn parse_time_ns(t: &[u8]) -> Option<i64> {
     for &b in s {
         ns = ns * 10 + (b - b'0') as i64;
     }
-    ns *= 1_000_000_000;
+    let mut ns = ns.checked_mul(1_000_000_000)?;
     if let Some(f) = parts.next() {
         if f.len() > 9 || !f.iter().all(u8::is_ascii_digit) {
             return None;
@@ -421,7 +421,7 @@ fn parse_time_ns(t: &[u8]) -> Option<i64> {
         for &b in f {
             frac = frac * 10 + (b - b'0') as i64;
         }
-        ns += frac * 10i64.pow(9 - f.len() as u32);
+        ns = ns.checked_add(frac * 10i64.pow(9 - f.len() as u32))?;
     }
     Some(ns)
 }
@@ -460,7 +460,7 @@ pub fn parse_date(s: &[u8]) -> Option<i64> {
         ampm = Some(next == "pm");
         next = rest.next()?;
     }
-    let year: i64 = next.parse().ok()?;
+    let year: i64 = next.parse().ok().filter(|y| (1..=9999).contains(y))?;
     let mut tp = time.split(':');
     let mut h: i64 = tp.next()?.parse().ok()?;
     let m: i64 = tp.next()?.parse().ok()?;
@@ -476,7 +476,9 @@ pub fn parse_date(s: &[u8]) -> Option<i64> {
         return None;
     }
     let days = days_from_civil(year, month, day);
-    Some((days * 86_400 + h * 3600 + m * 60) * 1_000_000_000 + sec_ns)
+    (days * 86_400 + h * 3600 + m * 60)
+        .checked_mul(1_000_000_000)?
+        .checked_add(sec_ns)
 }
 
 /// Days since 1970-01-01 of a proleptic Gregorian date.

@@ -175,7 +175,7 @@ impl<R: Read> BlfReader<R> {
         self.file_offset = size.max(144) as u64;
         let st: [u16; 8] = std::array::from_fn(|i| u16le(&h, 40 + 2 * i));
         let (y, mo, d, hh, mi, ss, ms) = (st[0], st[1], st[3], st[4], st[5], st[6], st[7]);
-        if y >= 1970 && (1..=12).contains(&mo) && (1..=31).contains(&d) {
+        if (1970..=2200).contains(&y) && (1..=12).contains(&mo) && (1..=31).contains(&d) {
             let days = days_from_civil(y as i64, mo as u32, d as u32);
             let s = days * 86_400 + hh as i64 * 3600 + mi as i64 * 60 + ss as i64;
             self.start_ns = Some(s * 1_000_000_000 + ms as i64 * 1_000_000);

@@ -61,6 +61,8 @@ pub enum ErrorKind {
     NoTimestamp(u8),
     #[error("timestamp seconds: expected 1 to 12 decimal digits")]
     TimestampSeconds,
+    #[error("timestamp does not fit 64-bit nanoseconds (beyond the year 2262)")]
+    TimestampRange,
     #[error("timestamp: expected '.' after the seconds, found {}", show(*.0))]
     TimestampDot(u8),
     #[error("timestamp fraction must have 6 (µs) or 9 (ns) digits, found {0}")]
@@ -298,8 +300,12 @@ fn parse_timestamp(c: &mut Cur) -> Result<i64, CandumpError> {
         return Err(c.err(ErrorKind::TimestampClose(c.peek())));
     }
     c.i += 1;
-    // 12 digits of seconds times 1e9 fits an i64.
-    Ok(sec * 1_000_000_000 + frac_ns)
+    sec.checked_mul(1_000_000_000)
+        .and_then(|ns| ns.checked_add(frac_ns))
+        .ok_or(CandumpError {
+            col: start + 1,
+            kind: ErrorKind::TimestampRange,
+        })
 }
 
 /// Parse hex digits `s` (already length-checked) as an ID.

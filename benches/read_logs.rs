@@ -1,0 +1,231 @@
+//! Log reading throughput: the RAV4 drive repeated to at least 1 M frames, written to a temp
+//! file as candump -L, Vector ASC and BLF, then read back through `LogReader` (file in the
+//! page cache; parse only, no decoding). Also the bare candump line parser on in-memory lines.
+//!
+//! Run: `cargo bench --bench read_logs` (needs the shared data; see docs/BENCHMARKS.md).
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use shimmy::source::log::LogReader;
+use shimmy::source::recorder::CandumpWriter;
+use shimmy::source::CanSource;
+use shimmy::wire::candump::parse_line;
+use shimmy::wire::Frame;
+use std::hint::black_box;
+use std::io::Write;
+use std::path::Path;
+
+const MIN_FRAMES: usize = 1_000_000;
+
+fn rav4_frames() -> Option<Vec<Frame>> {
+    let p = shimmy::shared_data::require_file("logs/comma2k19-rav4/rav4_2017_seg40_bus0.log")?;
+    let mut r = LogReader::open(p).unwrap();
+    let mut v = Vec::new();
+    while let Some(f) = r.next_frame().unwrap() {
+        v.push(f);
+    }
+    Some(v)
+}
+
+/// The drive repeated back to back (each copy 60 s later) to at least `MIN_FRAMES`.
+fn repeated(base: &[Frame]) -> Vec<Frame> {
+    let reps = MIN_FRAMES.div_ceil(base.len());
+    let span = base.last().unwrap().t_ns - base[0].t_ns + 1_000_000;
+    let mut v = Vec::with_capacity(reps * base.len());
+    for r in 0..reps {
+        v.extend(base.iter().map(|f| {
+            let mut g = *f;
+            g.t_ns += r as i64 * span;
+            g
+        }));
+    }
+    v
+}
+
+fn write_candump(frames: &[Frame], path: &Path) {
+    let mut w = CandumpWriter::create(path).unwrap();
+    for f in frames {
+        w.write(f).unwrap();
+    }
+    w.flush().unwrap();
+}
+
+fn write_asc(frames: &[Frame], path: &Path) {
+    let mut w = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let t0 = frames[0].t_ns;
+    writeln!(w, "date Thu Jan 01 00:00:00.000 1970").unwrap();
+    writeln!(w, "base hex  timestamps absolute").unwrap();
+    writeln!(w, "Begin Triggerblock Thu Jan 01 00:00:00.000 1970").unwrap();
+    for f in frames {
+        let dt = f.t_ns - t0;
+        write!(
+            w,
+            " {}.{:06} 1  {:X}{}             Rx   d {}",
+            dt / 1_000_000_000,
+            dt % 1_000_000_000 / 1000,
+            f.id,
+            if f.extended { "x" } else { "" },
+            f.len
+        )
+        .unwrap();
+        for b in f.payload() {
+            write!(w, " {b:02X}").unwrap();
+        }
+        writeln!(w).unwrap();
+    }
+    writeln!(w, "End TriggerBlock").unwrap();
+}
+
+fn write_blf(frames: &[Frame], path: &Path) {
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut h = vec![0u8; 144];
+    h[..4].copy_from_slice(b"LOGG");
+    h[4..8].copy_from_slice(&144u32.to_le_bytes());
+    out.write_all(&h).unwrap();
+    let t0 = frames[0].t_ns;
+    let mut chunk = Vec::with_capacity(128 * 1024 + 64);
+    let flush = |chunk: &mut Vec<u8>, out: &mut std::io::BufWriter<std::fs::File>| {
+        let mut e = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+        e.write_all(chunk).unwrap();
+        let z = e.finish().unwrap();
+        let size = 32 + z.len();
+        let mut c = b"LOBJ".to_vec();
+        c.extend_from_slice(&16u16.to_le_bytes());
+        c.extend_from_slice(&1u16.to_le_bytes());
+        c.extend_from_slice(&(size as u32).to_le_bytes());
+        c.extend_from_slice(&10u32.to_le_bytes());
+        c.extend_from_slice(&2u16.to_le_bytes());
+        c.extend_from_slice(&[0; 6]);
+        c.extend_from_slice(&(chunk.len() as u32).to_le_bytes());
+        c.extend_from_slice(&[0; 4]);
+        c.extend_from_slice(&z);
+        c.extend(std::iter::repeat_n(0u8, size % 4));
+        out.write_all(&c).unwrap();
+        chunk.clear();
+    };
+    for f in frames {
+        // CAN_MESSAGE, header v1, ns timestamps: 48 bytes, no padding needed.
+        chunk.extend_from_slice(b"LOBJ");
+        chunk.extend_from_slice(&32u16.to_le_bytes());
+        chunk.extend_from_slice(&1u16.to_le_bytes());
+        chunk.extend_from_slice(&48u32.to_le_bytes());
+        chunk.extend_from_slice(&1u32.to_le_bytes());
+        chunk.extend_from_slice(&2u32.to_le_bytes());
+        chunk.extend_from_slice(&[0; 4]);
+        chunk.extend_from_slice(&((f.t_ns - t0) as u64).to_le_bytes());
+        chunk.extend_from_slice(&1u16.to_le_bytes());
+        chunk.push(0);
+        chunk.push(f.len);
+        let id = f.id | if f.extended { 0x8000_0000 } else { 0 };
+        chunk.extend_from_slice(&id.to_le_bytes());
+        let mut d = [0u8; 8];
+        d[..f.len as usize].copy_from_slice(f.payload());
+        chunk.extend_from_slice(&d);
+        if chunk.len() >= 128 * 1024 {
+            flush(&mut chunk, &mut out);
+        }
+    }
+    if !chunk.is_empty() {
+        flush(&mut chunk, &mut out);
+    }
+}
+
+fn count_frames(path: &Path) -> u64 {
+    let mut r = LogReader::open(path).unwrap();
+    let mut n = 0u64;
+    let mut x = 0u32;
+    while let Some(f) = r.next_frame().unwrap() {
+        n += 1;
+        x ^= f.id ^ f.data[0] as u32;
+    }
+    black_box(x);
+    assert_eq!(r.stats().malformed, 0);
+    n
+}
+
+/// CPU seconds used by this thread so far (utime + stime from /proc, 10 ms ticks), so the
+/// rates below do not depend on how loaded the machine is; `None` off Linux.
+fn thread_cpu_s() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/thread-self/stat").ok()?;
+    let rest = &s[s.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split(' ').collect();
+    Some((f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?) / 100.0)
+}
+
+/// Frames per CPU second for `reps` reads of `path` (printed next to criterion's wall-clock
+/// figures).
+fn cpu_rate(name: &str, reps: u32, mut once: impl FnMut() -> u64) {
+    let Some(c0) = thread_cpu_s() else { return };
+    let mut n = 0u64;
+    for _ in 0..reps {
+        n += once();
+    }
+    let Some(c1) = thread_cpu_s() else { return };
+    println!(
+        "cpu-time rate {name}: {:.2} M frames per CPU second ({n} frames, {:.2} CPU s)",
+        n as f64 / (c1 - c0) / 1e6,
+        c1 - c0
+    );
+}
+
+fn bench(c: &mut Criterion) {
+    let Some(base) = rav4_frames() else { return };
+    let frames = repeated(&base);
+    let n = frames.len();
+    let dir = tempfile::tempdir().unwrap();
+    let cd = dir.path().join("rav4_x19.log");
+    let asc = dir.path().join("rav4_x19.asc");
+    let blf = dir.path().join("rav4_x19.blf");
+    write_candump(&frames, &cd);
+    write_asc(&frames, &asc);
+    write_blf(&frames, &blf);
+    for p in [&cd, &asc, &blf] {
+        assert_eq!(count_frames(p), n as u64, "{}", p.display());
+    }
+
+    cpu_rate("candump file", 5, || count_frames(&cd));
+    cpu_rate("ASC file", 5, || count_frames(&asc));
+    cpu_rate("BLF file", 5, || count_frames(&blf));
+
+    let mut g = c.benchmark_group("read_logs");
+    g.sample_size(10);
+    g.throughput(Throughput::Elements(n as u64));
+    g.bench_function(format!("candump_file_{n}_frames"), |b| {
+        b.iter(|| count_frames(&cd))
+    });
+    g.bench_function(format!("asc_file_{n}_frames"), |b| {
+        b.iter(|| count_frames(&asc))
+    });
+    g.bench_function(format!("blf_file_{n}_frames"), |b| {
+        b.iter(|| count_frames(&blf))
+    });
+    g.finish();
+
+    // The bare line parser over the candump text already in memory.
+    let text = std::fs::read(&cd).unwrap();
+    let lines: Vec<&[u8]> = text
+        .split(|&b| b == b'\n')
+        .filter(|l| !l.is_empty())
+        .collect();
+    cpu_rate("candump parse_line in memory", 5, || {
+        lines
+            .iter()
+            .filter(|l| parse_line(black_box(l)).is_ok())
+            .count() as u64
+    });
+    let mut g = c.benchmark_group("candump_parse_line");
+    g.sample_size(10);
+    g.throughput(Throughput::Elements(lines.len() as u64));
+    g.bench_function(format!("{}_lines_in_memory", lines.len()), |b| {
+        b.iter(|| {
+            let mut ok = 0u32;
+            for l in &lines {
+                ok += parse_line(black_box(l)).is_ok() as u32;
+            }
+            ok
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,431 @@
+//! `shimmy decode`: print the signals of every frame of one or more CAN logs, decoded with a DBC
+//! file, the way `cantools decode` does; a summary of what could not be decoded goes to stderr.
+//!
+//! This module is output policy only: reading logs is [`crate::source`]'s job and decoding
+//! [`crate::dbc`]'s. The per-frame path writes straight into a buffered writer and allocates
+//! nothing.
+
+use std::collections::HashSet;
+use std::io::{self, Write};
+use std::path::PathBuf;
+
+use anyhow::Context as _;
+
+use crate::dbc::{Database, DecodeError, Message, RawValue};
+use crate::source::{CanSource, Skip, SourceStats};
+use crate::wire::{Frame, FrameKind};
+
+/// Decode CAN logs with a DBC file.
+///
+/// Reads each LOG in turn (candump -L, Vector ASC or BLF, detected from the content) and prints
+/// one record per frame whose ID the DBC defines. Value-table entries stay numbers. At the end a
+/// summary goes to stderr: frames read, decoded, with unknown IDs, refused (a multiplexer value
+/// the DBC does not define, as cantools refuses them), short frames whose missing signals were
+/// left out, non-data frames, and what the log reader skipped (with file:line).
+///
+/// JSON lines (default), one object per decoded frame:
+///   {"t": 46408.584954, "id": 180, "extended": false, "msg": "SPEED",
+///    "signals": {"ENCODER": 29, "SPEED": 29.38}}
+/// with --raw also "raw": {...} holding the unscaled values. Non-finite values (a float signal
+/// holding NaN or infinity) are written as null.
+///
+/// CSV: a header `t,id,extended,msg,signal,value` (plus `raw` with --raw), then one row per
+/// decoded signal.
+#[derive(clap::Args, Debug)]
+#[command(verbatim_doc_comment)]
+pub struct Args {
+    /// DBC file describing the bus (UTF-8 or Windows-1252). Statements it cannot use are
+    /// skipped and counted; see --dbc-report.
+    #[arg(long, value_name = "FILE")]
+    pub dbc: PathBuf,
+
+    /// Signal mapping (TOML) to print the monitor's quantities instead of raw signals.
+    /// Not supported yet by this build.
+    #[arg(long, value_name = "FILE")]
+    pub mapping: Option<PathBuf>,
+
+    /// Output format.
+    #[arg(long, value_enum, default_value_t = Format::Jsonl)]
+    pub format: Format,
+
+    /// Also print the raw (unscaled) signal values.
+    #[arg(long)]
+    pub raw: bool,
+
+    /// List every DBC statement that was skipped, and every note, on stderr before decoding.
+    #[arg(long)]
+    pub dbc_report: bool,
+
+    /// Log files to decode, in order.
+    #[arg(value_name = "LOG", required = true)]
+    pub logs: Vec<PathBuf>,
+}
+
+/// Output formats of `shimmy decode`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    /// One JSON object per decoded frame.
+    Jsonl,
+    /// One CSV row per decoded signal.
+    Csv,
+}
+
+/// Options of [`decode_source`].
+#[derive(Clone, Copy, Debug)]
+pub struct Options {
+    pub format: Format,
+    pub raw: bool,
+}
+
+/// Counters of a decode run.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Summary {
+    /// Frames delivered by the sources.
+    pub frames: u64,
+    /// Frames decoded and printed.
+    pub decoded: u64,
+    /// Data frames whose ID the DBC does not define.
+    pub unknown_id: u64,
+    /// Distinct unknown IDs (extended ones with bit 31 set).
+    pub unknown_ids: HashSet<u32>,
+    /// Frames refused because a multiplexer value selects nothing.
+    pub refused_mux: u64,
+    /// Decoded frames shorter than their signals need.
+    pub short_frames: u64,
+    /// Signals left out of short frames.
+    pub missing_signals: u64,
+    /// Remote and error frames (not decoded).
+    pub non_data: u64,
+    /// Reader counters, summed over the logs.
+    pub source: SourceStats,
+    /// Reader skip reports (bounded by the reader).
+    pub skips: Vec<Skip>,
+}
+
+impl Summary {
+    fn add_source(&mut self, s: &SourceStats) {
+        self.source.frames += s.frames;
+        self.source.malformed += s.malformed;
+        self.source.skipped += s.skipped;
+        self.source.error_frames += s.error_frames;
+        self.source.backwards_timestamps += s.backwards_timestamps;
+        self.source.dropped += s.dropped;
+    }
+
+    /// The human summary printed at the end.
+    pub fn report(&self) -> String {
+        let mut s = format!(
+            "decode summary: {} frames read, {} decoded; not decoded: {} with unknown IDs ({} distinct), \
+             {} refused (unknown multiplexer value), {} remote/error frames; \
+             {} short frames missing {} signals; log reader: {} malformed, {} skipped, {} dropped, \
+             {} backwards timestamps",
+            self.frames,
+            self.decoded,
+            self.unknown_id,
+            self.unknown_ids.len(),
+            self.refused_mux,
+            self.non_data,
+            self.short_frames,
+            self.missing_signals,
+            self.source.malformed,
+            self.source.skipped,
+            self.source.dropped,
+            self.source.backwards_timestamps,
+        );
+        for k in &self.skips {
+            s.push_str(&format!("\n  skipped {}: {}", k.location, k.reason));
+        }
+        s
+    }
+}
+
+/// Pre-escaped names so that the per-frame path only copies bytes.
+struct Names {
+    /// Per message: JSON-escaped message name, and JSON-escaped signal names.
+    msgs: Vec<(String, Vec<String>)>,
+}
+
+fn json_str(s: &str) -> String {
+    serde_json::to_string(s).unwrap_or_else(|_| "\"?\"".into())
+}
+
+fn csv_str(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+impl Names {
+    fn new(db: &Database, format: Format) -> Names {
+        let esc = |s: &str| match format {
+            Format::Jsonl => json_str(s),
+            Format::Csv => csv_str(s),
+        };
+        Names {
+            msgs: db
+                .messages()
+                .iter()
+                .map(|m| {
+                    (
+                        esc(&m.name),
+                        m.signals.iter().map(|s| esc(&s.name)).collect(),
+                    )
+                })
+                .collect(),
+        }
+    }
+}
+
+/// A number as JSON/CSV: integers without a fraction, others in shortest round-trip form,
+/// non-finite as `null` (JSON) or empty (CSV).
+fn write_num<W: Write>(w: &mut W, v: f64, format: Format) -> io::Result<()> {
+    if !v.is_finite() {
+        return match format {
+            Format::Jsonl => w.write_all(b"null"),
+            Format::Csv => Ok(()),
+        };
+    }
+    if v.fract() == 0.0 && v.abs() < 1e15 {
+        write!(w, "{}", v as i64)
+    } else {
+        write!(w, "{v:?}")
+    }
+}
+
+fn write_raw<W: Write>(w: &mut W, r: RawValue, format: Format) -> io::Result<()> {
+    match r {
+        RawValue::Unsigned(u) => write!(w, "{u}"),
+        RawValue::Signed(i) => write!(w, "{i}"),
+        RawValue::F32(_) | RawValue::F64(_) => write_num(w, r.as_f64(), format),
+    }
+}
+
+fn write_time<W: Write>(w: &mut W, t_ns: i64) -> io::Result<()> {
+    let sign = if t_ns < 0 { "-" } else { "" };
+    let a = t_ns.unsigned_abs();
+    let (s, ns) = (a / 1_000_000_000, a % 1_000_000_000);
+    if ns % 1000 == 0 {
+        write!(w, "{sign}{s}.{:06}", ns / 1000)
+    } else {
+        write!(w, "{sign}{s}.{ns:09}")
+    }
+}
+
+/// Write the CSV header for the options.
+pub fn write_header<W: Write>(w: &mut W, opts: Options) -> io::Result<()> {
+    if opts.format == Format::Csv {
+        w.write_all(if opts.raw {
+            b"t,id,extended,msg,signal,value,raw\n"
+        } else {
+            b"t,id,extended,msg,signal,value\n"
+        })?;
+    }
+    Ok(())
+}
+
+/// Decode every frame of `source` into `out`, updating `summary`.
+pub fn decode_source<W: Write>(
+    db: &Database,
+    source: &mut dyn CanSource,
+    out: &mut W,
+    opts: Options,
+    summary: &mut Summary,
+) -> io::Result<()> {
+    let names = Names::new(db, opts.format);
+    while let Some(frame) = source.next_frame()? {
+        summary.frames += 1;
+        decode_frame(db, &names, &frame, out, opts, summary)?;
+    }
+    summary.add_source(&source.stats());
+    summary.skips.extend(source.take_skips());
+    Ok(())
+}
+
+fn decode_frame<W: Write>(
+    db: &Database,
+    names: &Names,
+    frame: &Frame,
+    out: &mut W,
+    opts: Options,
+    summary: &mut Summary,
+) -> io::Result<()> {
+    if frame.kind != FrameKind::Data {
+        summary.non_data += 1;
+        return Ok(());
+    }
+    let Some(mi) = db.message_index(frame.id, frame.extended) else {
+        summary.unknown_id += 1;
+        summary
+            .unknown_ids
+            .insert(frame.id | (frame.extended as u32) << 31);
+        return Ok(());
+    };
+    let msg = &db.messages()[mi];
+    let data = frame.payload();
+    // Check the multiplexers first so that a refused frame prints nothing.
+    if let Err(DecodeError::UnknownMultiplexerValue { .. }) = msg.check_multiplexers(data) {
+        summary.refused_mux += 1;
+        return Ok(());
+    }
+    let (mname, snames) = &names.msgs[mi];
+    let res = match opts.format {
+        Format::Jsonl => write_jsonl(msg, frame, mname, snames, out, opts),
+        Format::Csv => write_csv(msg, frame, mname, snames, out, opts),
+    }?;
+    match res {
+        Ok(sum) => {
+            summary.decoded += 1;
+            if sum.truncated > 0 {
+                summary.short_frames += 1;
+                summary.missing_signals += sum.truncated as u64;
+            }
+        }
+        Err(_) => summary.refused_mux += 1,
+    }
+    Ok(())
+}
+
+type DecodeResult = Result<crate::dbc::DecodeSummary, DecodeError>;
+
+fn write_jsonl<W: Write>(
+    msg: &Message,
+    frame: &Frame,
+    mname: &str,
+    snames: &[String],
+    out: &mut W,
+    opts: Options,
+) -> io::Result<DecodeResult> {
+    out.write_all(b"{\"t\": ")?;
+    write_time(out, frame.t_ns)?;
+    write!(
+        out,
+        ", \"id\": {}, \"extended\": {}, \"msg\": {mname}, \"signals\": {{",
+        frame.id, frame.extended
+    )?;
+    let mut err: io::Result<()> = Ok(());
+    let mut first = true;
+    let data = frame.payload();
+    let res = msg.decode(data, |i, _raw, phys| {
+        if err.is_ok() {
+            err = (|| {
+                if !first {
+                    out.write_all(b", ")?;
+                }
+                first = false;
+                out.write_all(snames[i].as_bytes())?;
+                out.write_all(b": ")?;
+                write_num(out, phys, Format::Jsonl)
+            })();
+        }
+    });
+    err?;
+    out.write_all(b"}")?;
+    if opts.raw {
+        out.write_all(b", \"raw\": {")?;
+        let mut first = true;
+        let mut err: io::Result<()> = Ok(());
+        let _ = msg.decode(data, |i, raw, _| {
+            if err.is_ok() {
+                err = (|| {
+                    if !first {
+                        out.write_all(b", ")?;
+                    }
+                    first = false;
+                    out.write_all(snames[i].as_bytes())?;
+                    out.write_all(b": ")?;
+                    write_raw(out, raw, Format::Jsonl)
+                })();
+            }
+        });
+        err?;
+        out.write_all(b"}")?;
+    }
+    out.write_all(b"}\n")?;
+    Ok(res)
+}
+
+fn write_csv<W: Write>(
+    msg: &Message,
+    frame: &Frame,
+    mname: &str,
+    snames: &[String],
+    out: &mut W,
+    opts: Options,
+) -> io::Result<DecodeResult> {
+    let mut err: io::Result<()> = Ok(());
+    let res = msg.decode(frame.payload(), |i, raw, phys| {
+        if err.is_ok() {
+            err = (|| {
+                write_time(out, frame.t_ns)?;
+                write!(out, ",{},{},{mname},", frame.id, frame.extended)?;
+                out.write_all(snames[i].as_bytes())?;
+                out.write_all(b",")?;
+                write_num(out, phys, Format::Csv)?;
+                if opts.raw {
+                    out.write_all(b",")?;
+                    write_raw(out, raw, Format::Csv)?;
+                }
+                out.write_all(b"\n")
+            })();
+        }
+    });
+    err?;
+    Ok(res)
+}
+
+/// Open a log file as a frame source.
+fn open_log(path: &std::path::Path) -> anyhow::Result<Box<dyn CanSource>> {
+    let r = crate::source::log::LogReader::open(path)
+        .with_context(|| format!("opening log {}", path.display()))?;
+    Ok(Box::new(r))
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.mapping.is_some() {
+        anyhow::bail!(
+            "--mapping is not supported yet: mapped quantities (steering angle, brake, speed, \
+             acceleration) are not available in this build; run without --mapping to print the \
+             DBC signals"
+        );
+    }
+    let (db, report) = Database::load(&args.dbc)?;
+    if args.dbc_report {
+        eprint!("{}: {report}", args.dbc.display());
+    } else if !report.skipped.is_empty() {
+        eprintln!(
+            "{}: {} DBC statements skipped (--dbc-report lists them)",
+            args.dbc.display(),
+            report.skipped.len()
+        );
+    }
+    let opts = Options {
+        format: args.format,
+        raw: args.raw,
+    };
+    let stdout = io::stdout();
+    let mut out = io::BufWriter::with_capacity(1 << 16, stdout.lock());
+    let mut summary = Summary::default();
+    let result = (|| -> anyhow::Result<()> {
+        write_header(&mut out, opts)?;
+        for log in &args.logs {
+            let mut src = open_log(log)?;
+            decode_source(&db, src.as_mut(), &mut out, opts, &mut summary)
+                .with_context(|| format!("reading {}", log.display()))?;
+        }
+        out.flush()?;
+        Ok(())
+    })();
+    eprintln!("{}", summary.report());
+    match result {
+        // A closed pipe (`| head`) is a normal way to stop.
+        Err(e)
+            if e.downcast_ref::<io::Error>()
+                .is_some_and(|io| io.kind() == io::ErrorKind::BrokenPipe) =>
+        {
+            Ok(())
+        }
+        other => other,
+    }
+}

@@ -1,0 +1,435 @@
+//! Right-hand side of the shimmy model: equations (1)–(5) of MODEL.md §3 with the joint forces
+//! of §4, the tire forces and moments of §5, the braking/pitch states of §6, the excitation of
+//! §7, and optionally the steering-column coordinate of §15.
+//!
+//! What it is: `Model::eval(t, y, ctx) -> ẏ` plus the auxiliary forces, on fixed-size arrays
+//! (no allocation). What it is not: the integrator or the step-boundary bookkeeping of contact
+//! flags, impact velocities and noise (`integrate`, `sim`).
+
+use super::braking::{front_wheel_force, pitch_accel, Demand};
+use super::geometry::{cross, Trapezoid};
+use super::joint::{hertz_k, ClearanceJoint, IdealJoint, JointForce};
+use super::params::VehicleParams;
+use super::tire::PureSlip;
+
+/// Number of states: the 16 of MODEL.md §1 plus the two of the §15 column option (held at zero
+/// when the option is off).
+pub const N: usize = 18;
+/// The state vector.
+pub type State = [f64; N];
+
+/// State indices (MODEL.md §1, §15).
+pub mod ix {
+    pub const TH1: usize = 0;
+    pub const TH2: usize = 1;
+    pub const TH3: usize = 2;
+    pub const X: usize = 3;
+    pub const TH4: usize = 4;
+    pub const TH1D: usize = 5;
+    pub const TH2D: usize = 6;
+    pub const TH3D: usize = 7;
+    pub const XD: usize = 8;
+    pub const TH4D: usize = 9;
+    /// Transient slips α_L, α_R (§5.2).
+    pub const AL: usize = 10;
+    pub const AR: usize = 11;
+    /// Vehicle speed v and wheel spin angle φ_w (§6).
+    pub const V: usize = 12;
+    pub const PHI: usize = 13;
+    /// Filtered deceleration a_f and its rate (§6).
+    pub const AF: usize = 14;
+    pub const AFD: usize = 15;
+    /// §15 option: steering-wheel angle and rate.
+    pub const SW: usize = 16;
+    pub const SWD: usize = 17;
+}
+
+/// Which joints have clearance (MODEL.md §4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum JointMode {
+    /// Both joints with clearance c (the paper's dual case).
+    Dual,
+    /// Left joint with clearance, right joint ideal (`--single`).
+    Single,
+    /// Both joints ideal (penalty bushings); used for checks.
+    Ideal,
+}
+
+/// Model switches used by checks (energy conservation, symmetry). All true in normal runs.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Switches {
+    /// Tire forces and moments (§5).
+    pub tires: bool,
+    /// Clearance-joint contact forces (§4); false leaves pins and bushings unconnected.
+    pub contact: bool,
+}
+
+impl Default for Switches {
+    fn default() -> Self {
+        Self {
+            tires: true,
+            contact: true,
+        }
+    }
+}
+
+/// Values held constant over one integration step (MODEL.md §4, §7, §10).
+#[derive(Debug, Clone, Copy)]
+pub struct StepCtx {
+    /// Held impact velocities δ'⁻ (None while the contact flag is not set).
+    pub v_imp: [Option<f64>; 2],
+    /// Road-noise moments n_L, n_R at v_n (§7).
+    pub noise: [f64; 2],
+    /// Longitudinal demand law (§6 or external).
+    pub demand: Demand,
+    /// Slip-inversion start values (used when `warm_slip`), unit slip.
+    pub kappa_guess: [f64; 2],
+    /// Warm-start the braking-slip Newton iteration and stop at convergence (faster
+    /// integrator); false is MODEL.md §5.3's 8 cold Newton steps.
+    pub warm_slip: bool,
+}
+
+/// Forces and other by-products of one right-hand-side evaluation.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Aux {
+    /// Joint forces on the pins, L and R.
+    pub joint: [JointForce; 2],
+    /// Tire forces per wheel: F_x (braking > 0), F_y, M_z, F_z.
+    pub fx: [f64; 2],
+    pub fy: [f64; 2],
+    pub mz: [f64; 2],
+    pub fz: [f64; 2],
+    /// Braking slips κ.
+    pub kappa: [f64; 2],
+    /// Demanded deceleration.
+    pub a_dem: f64,
+    /// Column torque T_c (§15; 0 when the option is off).
+    pub column_torque: f64,
+}
+
+/// Constants of the model for one vehicle and one scenario (derived from §9).
+#[derive(Debug, Clone)]
+pub struct Model {
+    pub geo: Trapezoid,
+    pub joint: ClearanceJoint,
+    pub ideal: IdealJoint,
+    pub mode: JointMode,
+    pub sw: Switches,
+    // Eq. (1)–(2)
+    pub i_w: f64,
+    pub c_s: f64,
+    pub k_s: f64,
+    pub j_p: f64,
+    // Eq. (3)
+    pub i_f: f64,
+    pub c_roll: f64,
+    pub k_roll: f64,
+    pub r_w: f64,
+    // Eq. (4)–(5)
+    pub m_t: f64,
+    pub k_eq: f64,
+    pub k_g: f64,
+    pub c_g: f64,
+    pub i_t: f64,
+    pub c_th4: f64,
+    pub r_p: f64,
+    // Tires (§5)
+    pub fz0: f64,
+    pub load_transfer_per_mps2: f64,
+    pub k_tz_half_track: f64,
+    pub k_ty: f64,
+    pub mu: f64,
+    pub trail: f64,
+    pub scrub: f64,
+    pub spindle: f64,
+    pub fz_floor: f64,
+    // §6, §7
+    pub mass: f64,
+    pub front_share: f64,
+    pub v_stop: f64,
+    pub omega_p: f64,
+    pub zeta_p: f64,
+    pub unbalance: f64,
+    pub phases: [f64; 2],
+    pub noise_ref_speed: f64,
+    // §15
+    pub column: bool,
+    pub j_sw: f64,
+    pub k_c: f64,
+    pub c_tb: f64,
+    pub k_h: f64,
+    pub c_h: f64,
+}
+
+impl Model {
+    /// Builds the constants. `clearance_m` is c (§4); `phases` the unbalance phases (§7).
+    pub fn new(
+        p: &VehicleParams,
+        clearance_m: f64,
+        mode: JointMode,
+        sw: Switches,
+        unbalance_kgm: f64,
+        phases: [f64; 2],
+    ) -> Self {
+        let s = &p.steering;
+        let geo = Trapezoid::new(
+            s.kingpin_half_spacing_m,
+            s.arm_length_m,
+            s.trapezoid_angle_deg.to_radians(),
+        );
+        let j = &p.joint;
+        let joint = ClearanceJoint {
+            c: clearance_m,
+            r_p: j.pin_radius_m,
+            r_b: j.pin_radius_m + clearance_m,
+            k: hertz_k(
+                j.young_modulus_pa,
+                j.poisson_ratio,
+                j.pin_radius_m,
+                clearance_m,
+            ),
+            ln_factor: 0.75 * (1.0 - j.restitution * j.restitution),
+            mu: j.friction,
+            v_eps: j.friction_reg_velocity_mps,
+            c_tan: j.tangential_damping_ns_per_m,
+            v_imp_min: j.min_impact_velocity_mps,
+        };
+        let (k_t, k_g) = (s.tie_rod_stiffness_n_per_m, s.restraint_stiffness_n_per_m);
+        let v = &p.vehicle;
+        let a = &p.axle;
+        let r_p = s.rack_travel_per_pinion_rad_m;
+        let c = &p.column;
+        let k_tb = c.torsion_bar_nm_per_rad;
+        Self {
+            geo,
+            joint,
+            ideal: IdealJoint {
+                k: j.ideal_stiffness_n_per_m,
+                c: j.ideal_damping_ns_per_m,
+            },
+            mode,
+            sw,
+            i_w: s.kingpin_inertia_kgm2,
+            c_s: s.kingpin_damping_nms_per_rad,
+            k_s: s.kingpin_stiffness_nm_per_rad,
+            j_p: a.wheel_spin_inertia_kgm2,
+            i_f: a.roll_inertia_kgm2,
+            c_roll: a.roll_damping_nms_per_rad,
+            k_roll: a.roll_stiffness_nm_per_rad,
+            r_w: a.wheel_radius_m,
+            m_t: s.tie_rod_mass_kg,
+            k_eq: k_t * k_g / (k_t + k_g),
+            k_g,
+            c_g: s.restraint_damping_ns_per_m,
+            i_t: s.tie_rod_mass_kg * geo.l_t * geo.l_t / 12.0,
+            c_th4: s.tie_rod_yaw_damping_nms_per_rad,
+            r_p,
+            fz0: v.mass_kg * v.gravity_mps2 * v.cg_to_rear_axle_m / (2.0 * v.wheelbase_m),
+            load_transfer_per_mps2: v.mass_kg * v.cg_height_m / v.wheelbase_m,
+            k_tz_half_track: p.tire.vertical_stiffness_n_per_m * a.track_m * 0.5,
+            k_ty: p.tire.lateral_stiffness_n_per_m,
+            mu: p.tire.friction_scale,
+            trail: s.caster_trail_m,
+            scrub: s.scrub_radius_m,
+            spindle: s.spindle_offset_m,
+            fz_floor: 200.0,
+            mass: v.mass_kg,
+            front_share: p.braking.front_share,
+            v_stop: p.braking.v_stop_mps,
+            omega_p: std::f64::consts::TAU * p.braking.pitch_freq_hz,
+            zeta_p: p.braking.pitch_damping_ratio,
+            unbalance: unbalance_kgm,
+            phases,
+            noise_ref_speed: p.excitation.noise_ref_speed_mps,
+            column: c.enabled,
+            j_sw: c.inertia_kgm2,
+            k_c: 1.0 / (1.0 / k_tb + 1.0 / (k_t * r_p * r_p)),
+            c_tb: c.torsion_bar_damping_nms_per_rad,
+            k_h: 1.0 / (1.0 / (k_g * r_p * r_p) - 1.0 / k_tb),
+            c_h: c.hands_damping_nms_per_rad,
+        }
+    }
+
+    /// Steering-wheel angle seen by the sensor (rad): §8 kinematic pinion angle, or the §15
+    /// rim angle when the column option is on.
+    #[inline]
+    pub fn delta_sw(&self, y: &State) -> f64 {
+        if self.column {
+            y[ix::SW]
+        } else {
+            super::sensor::steering_wheel_angle_rad(y[ix::X], self.k_eq, self.k_g, self.r_p)
+        }
+    }
+
+    /// Joint forces at one state (§4).
+    #[inline(always)]
+    pub fn joints(&self, y: &State, ctx: &StepCtx) -> [JointForce; 2] {
+        use ix::*;
+        let pts = self.geo.points(
+            y[TH1], y[TH2], y[X], y[TH4], y[TH1D], y[TH2D], y[XD], y[TH4D],
+        );
+        let rates = [y[TH1D], y[TH2D]];
+        let mut out = [JointForce::default(); 2];
+        for i in 0..2 {
+            let ideal = match self.mode {
+                JointMode::Dual => false,
+                JointMode::Single => i == 1,
+                JointMode::Ideal => true,
+            };
+            out[i] = if ideal {
+                self.ideal
+                    .force(pts.p[i], pts.p_dot[i], pts.b[i], pts.b_dot[i])
+            } else {
+                let f = self.joint.force(
+                    pts.p[i],
+                    pts.p_dot[i],
+                    pts.b[i],
+                    pts.b_dot[i],
+                    rates[i],
+                    y[TH4D],
+                    ctx.v_imp[i],
+                );
+                if self.sw.contact {
+                    f
+                } else {
+                    JointForce {
+                        f: [0.0, 0.0],
+                        f_n: 0.0,
+                        ..f
+                    }
+                }
+            };
+        }
+        out
+    }
+
+    /// Penetration δ and rate δ' of the clearance joints (for the step-boundary flags, §10).
+    /// Ideal joints report (−∞, 0).
+    pub fn penetrations(&self, y: &State) -> [(f64, f64); 2] {
+        use ix::*;
+        let pts = self.geo.points(
+            y[TH1], y[TH2], y[X], y[TH4], y[TH1D], y[TH2D], y[XD], y[TH4D],
+        );
+        let mut out = [(f64::NEG_INFINITY, 0.0); 2];
+        for (i, o) in out.iter_mut().enumerate() {
+            let ideal = match self.mode {
+                JointMode::Dual => false,
+                JointMode::Single => i == 1,
+                JointMode::Ideal => true,
+            };
+            if !ideal {
+                *o = self
+                    .joint
+                    .penetration(pts.p[i], pts.p_dot[i], pts.b[i], pts.b_dot[i]);
+            }
+        }
+        out
+    }
+
+    /// ẏ = f(t, y) (MODEL.md §3–§7, §15), writing the by-products into `aux`.
+    #[inline(always)]
+    pub fn eval(&self, t: f64, y: &State, ctx: &StepCtx, dy: &mut State, aux: &mut Aux) {
+        use ix::*;
+        let v = y[V];
+        let omega = v / self.r_w; // Ω = v/R_w (§1)
+        let th = [y[TH1], y[TH2]];
+        let thd = [y[TH1D], y[TH2D]];
+
+        // §6: demand, speed, wheel spin, pitch filter.
+        let a_dem = ctx.demand.a_dem(t, v, self.v_stop);
+        aux.a_dem = a_dem;
+        dy[V] = -a_dem;
+        dy[PHI] = omega;
+        dy[AF] = y[AFD];
+        dy[AFD] = pitch_accel(a_dem, y[AF], y[AFD], self.omega_p, self.zeta_p);
+
+        // §4: joint forces and moments.
+        let jf = self.joints(y, ctx);
+        aux.joint = jf;
+        let g = self.geo.centre(y[X]);
+        let mut m_joint = [0.0; 2];
+        let mut m_rod = 0.0;
+        for i in 0..2 {
+            let o = self.geo.kingpin(i);
+            let f = jf[i].f;
+            m_joint[i] = cross([jf[i].q_p[0] - o[0], jf[i].q_p[1] - o[1]], f);
+            m_rod += cross([jf[i].q_b[0] - g[0], jf[i].q_b[1] - g[1]], [-f[0], -f[1]]);
+        }
+
+        // §5, §7: tire and excitation moments about the kingpins, lateral forces for the roll.
+        let u_om2 = self.unbalance * omega * omega;
+        let f_long = front_wheel_force(a_dem, self.mass, self.front_share);
+        let dfz_half = 0.5 * self.load_transfer_per_mps2 * y[AF];
+        let noise_scale = v / self.noise_ref_speed;
+        let mut m_tire = [0.0; 2];
+        let mut f_lat_sum = 0.0;
+        for i in 0..2 {
+            let side = if i == 0 { -1.0 } else { 1.0 }; // ∓ in §5.1, ± in §5.4
+            let (s_ph, c_ph) = (y[PHI] + self.phases[i]).sin_cos();
+            let fz = (self.fz0 + dfz_half + side * self.k_tz_half_track * y[TH3] + u_om2 * s_ph)
+                .max(self.fz_floor);
+            aux.fz[i] = fz;
+            let (sin_t, cos_t) = th[i].sin_cos();
+            let alpha_t = y[AL + i];
+            let mut m = side * self.spindle * u_om2 * c_ph + ctx.noise[i] * noise_scale;
+            if self.sw.tires {
+                let tire = PureSlip::at_load(fz, self.mu);
+                let kappa = if ctx.warm_slip {
+                    tire.invert_fx(f_long, Some(ctx.kappa_guess[i]), 8, 1e-10)
+                } else {
+                    tire.invert_fx(f_long, None, 8, 0.0)
+                };
+                let (fx, fy, mz) = tire.combined(kappa, alpha_t);
+                aux.kappa[i] = kappa;
+                aux.fx[i] = fx;
+                aux.fy[i] = fy;
+                aux.mz[i] = mz;
+                // §5.4: −e·F_y − M_z ± r_s·F_x (+ for L, − for R).
+                m += -self.trail * fy - mz - side * self.scrub * fx;
+                // §3: F_lat = −F_y cos θ + F_x sin θ.
+                f_lat_sum += -fy * cos_t + fx * sin_t;
+                // §5.2: σ α' = V_sy − |v| α, σ = C_Fα(F_z)/k_ty.
+                let sigma = tire.cornering_stiffness() / self.k_ty;
+                let v_sy = v * sin_t + (self.trail * thd[i] - self.r_w * y[TH3D]) * cos_t;
+                dy[AL + i] = (v_sy - v.abs() * alpha_t) / sigma;
+            } else {
+                dy[AL + i] = 0.0;
+            }
+            m_tire[i] = m;
+        }
+
+        // Eq. (1), (2).
+        let gyro_w = -self.j_p * omega * y[TH3D];
+        for i in 0..2 {
+            dy[TH1 + i] = thd[i];
+            dy[TH1D + i] =
+                (-self.c_s * thd[i] - self.k_s * th[i] + gyro_w + m_tire[i] + m_joint[i])
+                    / self.i_w;
+        }
+        // Eq. (3).
+        dy[TH3] = y[TH3D];
+        dy[TH3D] = (-self.c_roll * y[TH3D] - self.k_roll * y[TH3]
+            + self.j_p * omega * (thd[0] + thd[1])
+            - self.r_w * f_lat_sum)
+            / self.i_f;
+        // Eq. (4) or (4′) of §15.
+        let pin_x = -jf[0].f[0] - jf[1].f[0];
+        dy[X] = y[XD];
+        if self.column {
+            let tc = self.k_c * (y[X] / self.r_p - y[SW]) + self.c_tb * (y[XD] / self.r_p - y[SWD]);
+            aux.column_torque = tc;
+            dy[XD] = (-tc / self.r_p - self.c_g * y[XD] + pin_x) / self.m_t;
+            dy[SW] = y[SWD];
+            dy[SWD] = (tc - self.k_h * y[SW] - self.c_h * y[SWD]) / self.j_sw;
+        } else {
+            aux.column_torque = 0.0;
+            dy[XD] = (-self.k_eq * y[X] - self.c_g * y[XD] + pin_x) / self.m_t;
+            dy[SW] = 0.0;
+            dy[SWD] = 0.0;
+        }
+        // Eq. (5).
+        dy[TH4] = y[TH4D];
+        dy[TH4D] = (-self.c_th4 * y[TH4D] + m_rod) / self.i_t;
+    }
+}

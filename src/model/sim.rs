@@ -1,0 +1,389 @@
+//! The simulator: a scenario (MODEL.md §6–§7) run through the model with the step-boundary
+//! bookkeeping of §4/§10 (contact flags, held impact velocities, noise held over each step),
+//! outputs per §8/§11, and a 1 kHz trace.
+//!
+//! What it is: the library entry point used by `shimmy simulate`, firmware-sim and the
+//! observer. What it is not: signal analysis (see `crate::analysis`).
+
+use super::braking::Demand;
+use super::excitation::Excitation;
+use super::integrate::rk4_step;
+use super::params::VehicleParams;
+use super::rhs::{ix, Aux, JointMode, Model, State, StepCtx, Switches, N};
+use serde::{Deserialize, Serialize};
+
+/// One simulation case. `Default` is MODEL.md's reference case: dual clearance 0.1 mm,
+/// 55 km/h, 0.5 g, seed 0, h = 1e-4 s, 10 s, unbalance and noise on.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Scenario {
+    /// c: radial clearance of the joints (§4).
+    pub clearance_m: f64,
+    /// Which joints have clearance.
+    pub joints: JointMode,
+    /// Seed of the unbalance phases and road noise (§7).
+    pub seed: u64,
+    /// Initial speed.
+    pub v0_mps: f64,
+    /// Peak deceleration of the §6 event in g.
+    pub decel_g: f64,
+    /// Simulated time.
+    pub duration_s: f64,
+    /// RK4 step.
+    pub h_s: f64,
+    /// Output rate of [`run`] (samples per second).
+    pub output_hz: f64,
+    /// Wheel unbalance on (§7, U from the vehicle file).
+    pub unbalance: bool,
+    /// Road noise on (§7).
+    pub noise: bool,
+    /// Initial kick θ1'(0); None takes the vehicle file's value (§7).
+    pub kick_theta1_rad_s: Option<f64>,
+    /// Initial θ2'(0) (0 in MODEL.md; used by symmetry checks).
+    pub kick_theta2_rad_s: f64,
+    /// Model switches (checks only).
+    pub switches: Switches,
+    /// Integration scheme.
+    pub integrator: Integrator,
+}
+
+/// Integration scheme.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Integrator {
+    /// MODEL.md §10 as specified: RK4 with 8 cold Newton steps of the slip inversion per
+    /// right-hand-side evaluation.
+    Rk4,
+    /// RK4 with the braking-slip Newton iteration warm-started from the previous stage and
+    /// stopped at convergence (same solution to 1e-10 % slip, fewer transcendental calls).
+    Rk4WarmSlip,
+}
+
+impl Default for Scenario {
+    fn default() -> Self {
+        Self {
+            clearance_m: 0.1e-3,
+            joints: JointMode::Dual,
+            seed: 0,
+            v0_mps: 55.0 / 3.6,
+            decel_g: 0.5,
+            duration_s: 10.0,
+            h_s: 1e-4,
+            output_hz: 1000.0,
+            unbalance: true,
+            noise: true,
+            kick_theta1_rad_s: None,
+            kick_theta2_rad_s: 0.0,
+            switches: Switches::default(),
+            integrator: Integrator::Rk4,
+        }
+    }
+}
+
+/// A scenario value that cannot be simulated.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("scenario `{key}` = {value}: {why}")]
+pub struct ScenarioError {
+    pub key: &'static str,
+    pub value: f64,
+    pub why: &'static str,
+}
+
+impl Scenario {
+    /// Checks the scenario; errors name the field.
+    pub fn validate(&self) -> Result<(), ScenarioError> {
+        let err = |key, value, why| Err(ScenarioError { key, value, why });
+        if !(self.clearance_m.is_finite() && self.clearance_m > 0.0) {
+            return err("clearance_m", self.clearance_m, "must be finite and > 0");
+        }
+        if self.clearance_m > 5e-3 {
+            return err("clearance_m", self.clearance_m, "must be <= 5 mm");
+        }
+        if !(self.v0_mps.is_finite() && self.v0_mps >= 0.0) {
+            return err("v0_mps", self.v0_mps, "must be finite and >= 0");
+        }
+        if !(self.decel_g.is_finite() && (0.0..=1.2).contains(&self.decel_g)) {
+            return err("decel_g", self.decel_g, "must lie in [0, 1.2] g");
+        }
+        if !(self.duration_s.is_finite() && self.duration_s > 0.0 && self.duration_s <= 3600.0) {
+            return err("duration_s", self.duration_s, "must lie in (0, 3600] s");
+        }
+        if !(self.h_s.is_finite() && self.h_s > 0.0 && self.h_s <= 1e-3) {
+            return err("h_s", self.h_s, "must lie in (0, 1e-3] s");
+        }
+        if !(self.output_hz.is_finite() && self.output_hz > 0.0 && self.output_hz <= 1.0 / self.h_s)
+        {
+            return err("output_hz", self.output_hz, "must lie in (0, 1/h_s]");
+        }
+        Ok(())
+    }
+}
+
+/// Everything observable at one instant (SI; δ_sw in rad).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct Outputs {
+    pub t_s: f64,
+    pub theta1_rad: f64,
+    pub theta2_rad: f64,
+    pub theta3_rad: f64,
+    pub x_m: f64,
+    pub theta4_rad: f64,
+    pub theta1_rate_rad_s: f64,
+    pub theta2_rate_rad_s: f64,
+    pub theta3_rate_rad_s: f64,
+    pub x_rate_mps: f64,
+    pub theta4_rate_rad_s: f64,
+    /// Transient slips α_L, α_R (§5.2).
+    pub alpha_t: [f64; 2],
+    pub speed_mps: f64,
+    pub wheel_angle_rad: f64,
+    /// Filtered deceleration a_f (§6) and demanded deceleration.
+    pub decel_filtered_mps2: f64,
+    pub decel_demand_mps2: f64,
+    /// Steering-wheel angle seen by the sensor (§8, or §15 rim angle).
+    pub delta_sw_rad: f64,
+    /// Column torque T_c (§15; 0 when off).
+    pub column_torque_nm: f64,
+    /// Contact forces on the pins, L/R, x (across the car) and y (forward) (§4).
+    pub contact_fx_n: [f64; 2],
+    pub contact_fy_n: [f64; 2],
+    /// Penetration δ = |e| − c, L/R (negative in free flight; |e| for an ideal joint).
+    pub penetration_m: [f64; 2],
+    /// Tire forces L/R: F_x (braking > 0), F_y, M_z, F_z (§5).
+    pub tire_fx_n: [f64; 2],
+    pub tire_fy_n: [f64; 2],
+    pub tire_mz_nm: [f64; 2],
+    pub tire_fz_n: [f64; 2],
+}
+
+/// The stepping simulator. `step` allocates nothing.
+#[derive(Debug, Clone)]
+pub struct Simulator {
+    model: Model,
+    y: State,
+    steps: u64,
+    h: f64,
+    ctx: StepCtx,
+    exc: Excitation,
+    noise_on: bool,
+    integrator: Integrator,
+}
+
+impl Simulator {
+    /// Validates both inputs and sets the §7 initial conditions.
+    pub fn new(p: &VehicleParams, sc: &Scenario) -> anyhow::Result<Self> {
+        p.validate()?;
+        sc.validate()?;
+        let noise_std = if sc.noise {
+            p.excitation.noise_std_nm
+        } else {
+            0.0
+        };
+        let exc = Excitation::new(sc.seed, noise_std, p.excitation.noise_tau_s, sc.h_s);
+        let unbalance = if sc.unbalance {
+            p.excitation.unbalance_kgm
+        } else {
+            0.0
+        };
+        let model = Model::new(
+            p,
+            sc.clearance_m,
+            sc.joints,
+            sc.switches,
+            unbalance,
+            exc.phases,
+        );
+        let mut y = [0.0; N];
+        y[ix::TH1D] = sc.kick_theta1_rad_s.unwrap_or(p.excitation.kick_rad_per_s);
+        y[ix::TH2D] = sc.kick_theta2_rad_s;
+        y[ix::V] = sc.v0_mps;
+        let ctx = StepCtx {
+            v_imp: [None; 2],
+            noise: if sc.noise { exc.noise } else { [0.0; 2] },
+            demand: Demand::Event {
+                a_max_mps2: sc.decel_g * p.vehicle.gravity_mps2,
+                onset_s: p.braking.onset_s,
+                ramp_s: p.braking.ramp_s,
+            },
+            kappa_guess: [0.0; 2],
+            warm_slip: sc.integrator == Integrator::Rk4WarmSlip,
+        };
+        let mut sim = Self {
+            model,
+            y,
+            steps: 0,
+            h: sc.h_s,
+            ctx,
+            exc,
+            noise_on: sc.noise,
+            integrator: sc.integrator,
+        };
+        sim.update_contact_flags();
+        Ok(sim)
+    }
+
+    /// Current time (step count × h, no drift).
+    #[inline]
+    pub fn t(&self) -> f64 {
+        self.steps as f64 * self.h
+    }
+
+    /// Step size.
+    pub fn h(&self) -> f64 {
+        self.h
+    }
+
+    /// The state vector (indices in [`ix`]).
+    pub fn state(&self) -> &State {
+        &self.y
+    }
+
+    /// The model constants.
+    pub fn model(&self) -> &Model {
+        &self.model
+    }
+
+    /// Switches the longitudinal input to an external demand (m/s², > 0 braking, < 0
+    /// accelerating), held from now on until set again. Replaces the §6 event law.
+    pub fn set_decel_demand(&mut self, a_mps2: f64) {
+        self.ctx.demand = Demand::External {
+            a_mps2: if a_mps2.is_finite() { a_mps2 } else { 0.0 },
+        };
+    }
+
+    /// Advances one step h: RK4 with contact flags, impact velocities and noise held, then the
+    /// step-boundary updates of MODEL.md §4/§10.
+    #[inline]
+    pub fn step(&mut self) {
+        let t = self.t();
+        let aux = match self.integrator {
+            Integrator::Rk4 | Integrator::Rk4WarmSlip => {
+                rk4_step(&self.model, t, &mut self.y, self.h, &self.ctx)
+            }
+        };
+        self.ctx.kappa_guess = aux.kappa;
+        self.steps += 1;
+        self.update_contact_flags();
+        if self.noise_on {
+            self.exc.advance();
+            self.ctx.noise = self.exc.noise;
+        }
+    }
+
+    /// §4: the flag is set at the first boundary with δ > 0, recording δ'⁻ (floored), and
+    /// cleared at separation.
+    #[inline]
+    fn update_contact_flags(&mut self) {
+        let pen = self.model.penetrations(&self.y);
+        let v_min = self.model.joint.v_imp_min;
+        for (i, &(delta, delta_dot)) in pen.iter().enumerate() {
+            if delta > 0.0 {
+                if self.ctx.v_imp[i].is_none() {
+                    self.ctx.v_imp[i] = Some(delta_dot.max(v_min));
+                }
+            } else {
+                self.ctx.v_imp[i] = None;
+            }
+        }
+    }
+
+    /// Whether each joint is flagged in contact at the current step boundary.
+    pub fn in_contact(&self) -> [bool; 2] {
+        [self.ctx.v_imp[0].is_some(), self.ctx.v_imp[1].is_some()]
+    }
+
+    /// All outputs at the current instant (one extra right-hand-side evaluation).
+    pub fn outputs(&self) -> Outputs {
+        let mut dy = [0.0; N];
+        let mut aux = Aux::default();
+        self.model
+            .eval(self.t(), &self.y, &self.ctx, &mut dy, &mut aux);
+        let y = &self.y;
+        Outputs {
+            t_s: self.t(),
+            theta1_rad: y[ix::TH1],
+            theta2_rad: y[ix::TH2],
+            theta3_rad: y[ix::TH3],
+            x_m: y[ix::X],
+            theta4_rad: y[ix::TH4],
+            theta1_rate_rad_s: y[ix::TH1D],
+            theta2_rate_rad_s: y[ix::TH2D],
+            theta3_rate_rad_s: y[ix::TH3D],
+            x_rate_mps: y[ix::XD],
+            theta4_rate_rad_s: y[ix::TH4D],
+            alpha_t: [y[ix::AL], y[ix::AR]],
+            speed_mps: y[ix::V],
+            wheel_angle_rad: y[ix::PHI],
+            decel_filtered_mps2: y[ix::AF],
+            decel_demand_mps2: aux.a_dem,
+            delta_sw_rad: self.model.delta_sw(y),
+            column_torque_nm: aux.column_torque,
+            contact_fx_n: [aux.joint[0].f[0], aux.joint[1].f[0]],
+            contact_fy_n: [aux.joint[0].f[1], aux.joint[1].f[1]],
+            penetration_m: [aux.joint[0].delta, aux.joint[1].delta],
+            tire_fx_n: aux.fx,
+            tire_fy_n: aux.fy,
+            tire_mz_nm: aux.mz,
+            tire_fz_n: aux.fz,
+        }
+    }
+}
+
+/// A uniformly sampled run.
+#[derive(Debug, Clone)]
+pub struct Trace {
+    /// Sample rate.
+    pub fs_hz: f64,
+    /// Samples, the first at t = 0.
+    pub samples: Vec<Outputs>,
+    /// Brake onset t_b (§6).
+    pub brake_onset_s: f64,
+}
+
+impl Trace {
+    /// One column, e.g. `trace.column(|o| o.theta1_rad)`.
+    pub fn column(&self, f: impl Fn(&Outputs) -> f64) -> Vec<f64> {
+        self.samples.iter().map(f).collect()
+    }
+
+    /// Time of the stop: first sample after the brake onset with speed below 0.1 m/s (§6);
+    /// None if the vehicle never stops.
+    pub fn t_stop_s(&self) -> Option<f64> {
+        self.samples
+            .iter()
+            .find(|o| o.t_s > self.brake_onset_s && o.speed_mps < 0.1)
+            .map(|o| o.t_s)
+    }
+
+    /// §11 braking window [t_b, t_stop + 0.3 s] as a sample index range (clipped to the
+    /// trace; to its end if the car does not stop).
+    pub fn braking_window(&self) -> std::ops::Range<usize> {
+        let n = self.samples.len();
+        let i0 = ((self.brake_onset_s * self.fs_hz).round() as usize).min(n);
+        let i1 = match self.t_stop_s() {
+            Some(ts) => (((ts + 0.3) * self.fs_hz).round() as usize + 1).min(n),
+            None => n,
+        };
+        i0..i1.max(i0)
+    }
+}
+
+/// Runs a scenario and samples it at `sc.output_hz` (1 kHz by default, §10).
+pub fn run(p: &VehicleParams, sc: &Scenario) -> anyhow::Result<Trace> {
+    let mut sim = Simulator::new(p, sc)?;
+    let n_steps = (sc.duration_s / sc.h_s).round() as u64;
+    let stride = ((1.0 / sc.output_hz) / sc.h_s).round().max(1.0) as u64;
+    let mut samples = Vec::with_capacity((n_steps / stride + 1) as usize);
+    samples.push(sim.outputs());
+    for k in 1..=n_steps {
+        sim.step();
+        if k % stride == 0 {
+            samples.push(sim.outputs());
+        }
+    }
+    Ok(Trace {
+        fs_hz: 1.0 / (stride as f64 * sc.h_s),
+        samples,
+        brake_onset_s: p.braking.onset_s,
+    })
+}

@@ -1,0 +1,41 @@
+//! Helpers shared by the signals tests: where the shipped mappings and DBCs are, and reading a
+//! whole log into memory.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+
+use shimmy::dbc::Database;
+use shimmy::signals::mapping::MappingConfig;
+use shimmy::wire::Frame;
+
+pub fn repo(rel: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(rel)
+}
+
+pub fn mapping(name: &str) -> MappingConfig {
+    MappingConfig::from_toml_file(repo(&format!("config/mappings/{name}.toml"))).unwrap()
+}
+
+pub fn reference_db() -> Database {
+    let (db, report) = Database::load(repo("dbc/shimmy_reference.dbc")).unwrap();
+    assert!(report.skipped.is_empty(), "{:?}", report.skipped);
+    db
+}
+
+pub fn hex(s: &str) -> Vec<u8> {
+    (0..s.len() / 2)
+        .map(|i| u8::from_str_radix(&s[2 * i..2 * i + 2], 16).unwrap())
+        .collect()
+}
+
+/// Every frame of a log file, read with the project's log reader.
+pub fn log_frames(path: &std::path::Path) -> Vec<Frame> {
+    use shimmy::source::CanSource;
+    let mut r = shimmy::source::log::LogReader::open(path).unwrap();
+    let mut out = Vec::new();
+    while let Some(f) = r.next_frame().unwrap() {
+        out.push(f);
+    }
+    assert_eq!(r.stats().malformed, 0);
+    out
+}
