@@ -15,12 +15,18 @@ struct Cli {
 enum Cmd {
     /// Decode CAN logs (candump -L, ASC, BLF) with a DBC file, like `cantools decode`.
     Decode(shimmy::cli::decode::Args),
+    /// Estimate steering-joint clearance from one vehicle's CAN logs (braking events, model table).
+    Estimate(shimmy::cli::estimate::Args),
+    /// Build the clearance estimator's response table from the shimmy model.
+    Calibrate(shimmy::cli::calibrate::Args),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result: anyhow::Result<()> = match cli.cmd {
         Cmd::Decode(a) => shimmy::cli::decode::run(a),
+        Cmd::Estimate(a) => shimmy::cli::estimate::run(a),
+        Cmd::Calibrate(a) => shimmy::cli::calibrate::run(a),
     };
     if let Err(e) = result {
         eprintln!("shimmy: error: {e:#}");

@@ -1,4 +1,6 @@
 //! The `shimmy` command line: one module per subcommand. Each exposes an `Args` struct (clap) and
 //! a `run` function. Help text here is the manual.
 
+pub mod calibrate;
 pub mod decode;
+pub mod estimate;

@@ -161,7 +161,11 @@ mod tests {
         assert!((cfa - 59e3).abs() < 1e3, "C_Fα = {cfa}");
         let trail = t.mz.slope0() / t.fy.slope0();
         assert!((trail - 0.025).abs() < 0.002, "trail = {trail}");
-        assert!((t.fy.d / 4000.0 - 1.0).abs() < 0.1, "peak mu {}", t.fy.d / 4000.0);
+        assert!(
+            (t.fy.d / 4000.0 - 1.0).abs() < 0.1,
+            "peak mu {}",
+            t.fy.d / 4000.0
+        );
         // §5.2: relaxation length σ = C_Fα / k_ty ≈ 0.42 m.
         assert!((cfa / 1.4e5 - 0.42).abs() < 0.01);
     }

@@ -16,6 +16,7 @@ pub mod alerts;
 pub mod estimator;
 pub mod features;
 pub mod sensor;
+pub mod simulate;
 pub mod table;
 
 use std::path::Path;
@@ -109,6 +110,8 @@ pub struct Report {
     pub detectable: bool,
     /// When not detectable: the clearance is below this (mm), the posterior's 95 % quantile.
     pub below_mm: Option<f64>,
+    /// Posterior median (mm) whether or not detectable (for validation; null without estimate).
+    pub median_mm: Option<f64>,
     /// Human-readable verdict.
     pub verdict: String,
     pub events: Vec<EventOut>,
@@ -344,6 +347,7 @@ impl Observer {
             ),
         };
         Report {
+            median_mm: summary.map(|s| s.0.median_mm),
             clearance_mm,
             interval_mm,
             detectable,
