@@ -102,6 +102,11 @@ proptest! {
         prop_assert!(sig.encode_phys(offset + factor * (hi + 2.0), &mut data).is_err());
     }
 
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(300))]
+
     /// Arbitrary DBC-like text never panics the loader.
     #[test]
     fn parse_arbitrary_text_never_panics(text in "(BO_|SG_|CM_|VAL_|SG_MUL_VAL_|SIG_VALTYPE_|BA_|NS_|BU_|[ \\t\\n:;|@+\\-\"(),\\[\\]0-9a-zA-Z_]){0,300}") {
@@ -136,6 +141,41 @@ SG_MUL_VAL_ 100 INNER SW 1-1;\n\
 SG_MUL_VAL_ 100 OTHER SW 2-5;\n";
 
 proptest! {
+    /// The message decode loop (one-word fast path for classic frames) agrees with
+    /// `Signal::raw` (byte-window path) for every layout, and flags exactly the signals that
+    /// do not fit.
+    #[test]
+    fn message_decode_agrees_with_signal_raw(
+        (kind, size) in kind_strategy(),
+        start in 0u64..64,
+        big in any::<bool>(),
+        data in proptest::collection::vec(any::<u8>(), 0..=12),
+    ) {
+        let order = if big { ByteOrder::BigEndian } else { ByteOrder::LittleEndian };
+        let Ok(sig) = Signal::new("s", start, size, order, kind, 0.5, -3.0) else {
+            return Ok(());
+        };
+        let mut m = shimmy::dbc::Message::new("M", 1, false, 8);
+        m.signals.push(sig.clone());
+        let db = Database::from_messages(vec![m]).unwrap();
+        let m = &db.messages()[0];
+        let mut got = None;
+        let s = m.decode(&data, |_, raw, phys| got = Some((raw, phys))).unwrap();
+        match sig.raw(&data) {
+            Some(want) => {
+                let (raw, phys) = got.unwrap();
+                prop_assert!(same(raw, want));
+                let p = want.as_f64() * 0.5 - 3.0;
+                prop_assert!(phys == p || (phys.is_nan() && p.is_nan()));
+                prop_assert_eq!(s.decoded, 1);
+            }
+            None => {
+                prop_assert!(got.is_none());
+                prop_assert_eq!(s.truncated, 1);
+            }
+        }
+    }
+
     #[test]
     fn decode_arbitrary_payload_never_panics(data in proptest::collection::vec(any::<u8>(), 0..=64)) {
         let (db, report) = Database::parse(MIXED);

@@ -41,7 +41,8 @@ fn rav4_log_matches_expected_csv() {
     let csv = std::fs::read_to_string(csv).unwrap();
 
     // Rows grouped by frame, in file order: (timestamp, id, message, [(signal, value)]).
-    let mut groups: Vec<(String, u32, String, Vec<(String, f64)>)> = Vec::new();
+    type Group = (String, u32, String, Vec<(String, f64)>);
+    let mut groups: Vec<Group> = Vec::new();
     for row in csv.lines().skip(1) {
         let f: Vec<&str> = row.split(',').collect();
         assert_eq!(f.len(), 5, "bad CSV row {row}");

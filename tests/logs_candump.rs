@@ -79,7 +79,7 @@ fn every_grammar_feature_in_one_file() {
     assert_eq!(st.skipped, 1, "the CAN XL line");
     assert_eq!(st.error_frames, 1);
     assert_eq!(st.backwards_timestamps, 1);
-    assert_eq!(frames[1].extended, true);
+    assert!(frames[1].extended);
     assert_eq!(frames[1].len, 0);
     assert_eq!(frames[2].t_ns, 1_000_002_000);
     assert_eq!(

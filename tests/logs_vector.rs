@@ -121,6 +121,11 @@ fn python_can_asc_fixtures() {
     // "2.5010" after "Sat Sep 30 10:06:13.191 PM 2017" (UTC).
     assert_eq!(f[0].t_ns, 1_506_809_173_191_000_000 + 2_501_000_000);
 
+    // The gzip-compressed copy reads the same.
+    let (g, _, gz) = open(&format!("{d}/test_CanMessage.asc.gz")).unwrap();
+    assert_eq!(gz.format(), LogFormat::Asc);
+    assert_eq!(g, f);
+
     let (f, _, _) = open(&format!("{d}/issue_1299.asc")).unwrap();
     assert_eq!(
         (f[2].id, f[2].len, f[2].dlc),

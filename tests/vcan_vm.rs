@@ -113,13 +113,15 @@ fn vcan_suite_on_a_real_can_bus() {
         let line = line.expect("read harness output");
         // The whole console goes to the captured output (shown when the test fails).
         println!("{line}");
-        let line = line.trim_end();
-        if line.starts_with("VCAN-COUNTS ") {
-            counts.push(line.to_string());
-        } else if line.starts_with("SHIMMY-VM-RESULT ") || line.starts_with("SHIMMY-VM-BOOTED ") {
-            results.push(line.to_string());
-        } else if line.starts_with("SHIMMY-VM-SUMMARY ") {
-            summary = Some(line.to_string());
+        // Markers may follow terminal escapes from the VM firmware on the same line.
+        let marked = |m: &str| line.find(m).map(|i| line[i..].trim_end().to_string());
+        if let Some(l) = marked("VCAN-COUNTS ") {
+            counts.push(l);
+        } else if let Some(l) = marked("SHIMMY-VM-RESULT ").or_else(|| marked("SHIMMY-VM-BOOTED "))
+        {
+            results.push(l);
+        } else if let Some(l) = marked("SHIMMY-VM-SUMMARY ") {
+            summary = Some(l);
         }
     }
     let status = child.wait().expect("wait for tests/vcan/vm.sh");

@@ -13,8 +13,10 @@ use crate::scenario::{Drive, Segment};
 
 /// Standard gravity (m/s²).
 pub const G: f64 = 9.80665;
-/// MODEL.md §6: speed below which the braking deceleration fades out linearly (m/s).
+/// MODEL.md §6: speed below which the plant fades the braking deceleration out linearly (m/s).
 pub const V_STOP_MPS: f64 = 0.5;
+/// Holding demand while standing (g), faded by the plant like any braking demand.
+const HOLD_DECEL_G: f64 = 0.3;
 /// Speed regarded as standing still (m/s).
 const V_STANDSTILL_MPS: f64 = 0.02;
 /// Time constant of the approach to a cruise speed (s).
@@ -27,10 +29,12 @@ const CRUISE_TOL_MPS: f64 = 0.1;
 /// What the driver does at one instant.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct DriveCmd {
-    /// Demanded longitudinal deceleration (m/s², + = slowing down, − = accelerating).
+    /// Demanded longitudinal deceleration (m/s², + = slowing down, − = accelerating). Braking
+    /// demand is given before the MODEL.md §6 standstill fade `min(1, v/v_stop)`, which the
+    /// plant applies (see [`crate::plant::Plant::set_decel_demand`]).
     pub decel_demand_mps2: f64,
-    /// Braking deceleration the pedal asks for (m/s²), before the standstill fade: what sets the
-    /// master-cylinder pressure. 0 when the pedal is released.
+    /// Braking deceleration the pedal asks for (m/s²): what sets the master-cylinder pressure.
+    /// 0 when the pedal is released.
     pub pedal_decel_mps2: f64,
     /// Brake light switch.
     pub brake_pressed: bool,
@@ -200,7 +204,7 @@ impl Driver {
                     };
                     self.last_demand = 0.0;
                     return DriveCmd {
-                        decel_demand_mps2: pedal * (v / V_STOP_MPS).min(1.0),
+                        decel_demand_mps2: pedal,
                         pedal_decel_mps2: pedal,
                         brake_pressed: true,
                         done: false,
@@ -216,7 +220,7 @@ impl Driver {
                         continue;
                     }
                     return DriveCmd {
-                        decel_demand_mps2: 0.0,
+                        decel_demand_mps2: a_max,
                         pedal_decel_mps2: a_max,
                         brake_pressed: true,
                         done: false,
@@ -235,7 +239,7 @@ impl Driver {
                         continue;
                     }
                     return DriveCmd {
-                        decel_demand_mps2: 0.0,
+                        decel_demand_mps2: from_mps2 * frac,
                         pedal_decel_mps2: from_mps2 * frac,
                         brake_pressed: true,
                         done: false,
@@ -247,7 +251,11 @@ impl Driver {
                         continue;
                     }
                     self.last_demand = 0.0;
-                    return DriveCmd::default();
+                    // The brakes hold the car (and end the last of the §6 fade's creep).
+                    return DriveCmd {
+                        decel_demand_mps2: HOLD_DECEL_G * G,
+                        ..DriveCmd::default()
+                    };
                 }
                 (seg, phase) => unreachable!("segment {seg:?} in phase {phase:?}"),
             }
@@ -334,7 +342,13 @@ mod tests {
                 return (d, out);
             }
             out.push((t, v, cmd));
-            v = (v - cmd.decel_demand_mps2 * h).max(0.0);
+            // The plant's MODEL.md §6 fade of braking demand.
+            let a = if cmd.decel_demand_mps2 > 0.0 {
+                cmd.decel_demand_mps2 * (v / V_STOP_MPS).min(1.0)
+            } else {
+                cmd.decel_demand_mps2
+            };
+            v = (v - a * h).max(0.0);
         }
         panic!("drive cycle did not end");
     }
@@ -386,7 +400,7 @@ duration_s = 2.0
         let peak = trace
             .iter()
             .filter(|(t, _, _)| *t >= ev[0].t_start_s && *t < ev[0].t_end_s)
-            .map(|(_, _, c)| c.decel_demand_mps2)
+            .map(|(_, _, c)| c.pedal_decel_mps2)
             .fold(0.0, f64::max);
         assert!((peak - 0.5 * G).abs() < 1e-9);
     }
@@ -412,7 +426,8 @@ duration_s = 2.0
         let (_, trace) = run(CYCLE);
         for w in trace.windows(2) {
             let (a, b) = (&w[0].2, &w[1].2);
-            if !a.brake_pressed && !b.brake_pressed {
+            // (Standing still, the holding demand is faded away by the plant: no jerk there.)
+            if !a.brake_pressed && !b.brake_pressed && w[0].1 > V_STOP_MPS {
                 let jerk = (b.decel_demand_mps2 - a.decel_demand_mps2).abs() / 1e-3;
                 assert!(jerk <= JERK_MPS3 + 1e-6, "jerk {jerk}");
                 assert!(b.decel_demand_mps2 >= -0.25 * G - 1e-9);
@@ -436,6 +451,6 @@ duration_s = 2.0
             .iter()
             .find(|(t, _, _)| *t > ev.t_release_s + 0.1)
             .unwrap();
-        assert!(!stand.2.brake_pressed && stand.2.decel_demand_mps2 <= 0.0);
+        assert!(!stand.2.brake_pressed && stand.1 < 0.01);
     }
 }

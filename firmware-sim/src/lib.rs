@@ -10,11 +10,20 @@
 //! | [`scenario`] | the scenario TOML (`config/scenarios/*.toml`): parse and validate |
 //! | [`drive`] | the drive cycle: longitudinal demand, brake pedal, braking events |
 //! | [`plant`] | the plant interface, the model adapter, the driver's lane keeping |
+//! | [`bus`] | ECUs of the reference bus: sensors, rates, jitter, counters, checksums, faults |
+//! | [`sim`] | one run: steps the plant, polls the ECUs, yields time-ordered frames |
+//! | [`truth`] | the ground-truth sidecar (JSON) |
+//!
+//! Live output uses `shimmy::source::socketcan::LiveSink`.
 //!
 //! Not here: reading frames back or judging them (that is the monitor's job, in `shimmy`).
 
+pub mod bus;
 pub mod drive;
 pub mod plant;
 pub mod scenario;
+pub mod sim;
+pub mod truth;
 
 pub use scenario::Scenario;
+pub use sim::{FirmwareSim, RunInfo};

@@ -16,7 +16,8 @@ pub trait Plant {
     fn t_s(&self) -> f64;
     /// Advance one step. Must not allocate.
     fn step(&mut self);
-    /// Longitudinal demand for the next steps (m/s², + = decelerating). MODEL.md §6.
+    /// Longitudinal demand for the next steps (m/s², + = decelerating). The plant fades braking
+    /// demand by `min(1, v/v_stop)` (MODEL.md §6) so the car stops rather than reverses.
     fn set_decel_demand(&mut self, a_mps2: f64);
     /// Current joint clearances (m), for wear growth (MODEL.md §4).
     fn set_clearance_m(&mut self, left_m: f64, right_m: f64);
@@ -82,9 +83,9 @@ impl LaneKeeping {
 }
 
 /// A plant without steering dynamics, for testing the sensor and ground-truth pipeline against
-/// known values: a point mass that follows the demand exactly, whose steering wheel oscillates
-/// as `amplitude·sin(2π·f·t)` while it decelerates by more than 1 m/s² and rests at zero
-/// otherwise.
+/// known values: a point mass that follows the demand exactly (with the MODEL.md §6 fade near
+/// standstill), whose
+/// steering wheel oscillates as `amplitude·sin(2π·f·t)` throughout.
 #[derive(Clone, Debug)]
 pub struct PointMass {
     t: f64,
@@ -92,6 +93,7 @@ pub struct PointMass {
     n: u64,
     v: f64,
     a_dem: f64,
+    accel: f64,
     pub shimmy_amplitude_rad: f64,
     pub shimmy_hz: f64,
     steer: f64,
@@ -105,6 +107,7 @@ impl PointMass {
             n: 0,
             v: v0_mps,
             a_dem: 0.0,
+            accel: 0.0,
             shimmy_amplitude_rad,
             shimmy_hz,
             steer: 0.0,
@@ -117,14 +120,18 @@ impl Plant for PointMass {
         self.t
     }
     fn step(&mut self) {
-        self.v = (self.v - self.a_dem * self.h).max(0.0);
+        let a = if self.a_dem > 0.0 {
+            self.a_dem * (self.v / crate::drive::V_STOP_MPS).min(1.0)
+        } else {
+            self.a_dem
+        };
+        let v1 = (self.v - a * self.h).max(0.0);
+        self.accel = (v1 - self.v) / self.h;
+        self.v = v1;
         self.n += 1;
         self.t = self.n as f64 * self.h;
-        self.steer = if self.a_dem > 1.0 {
-            self.shimmy_amplitude_rad * (2.0 * std::f64::consts::PI * self.shimmy_hz * self.t).sin()
-        } else {
-            0.0
-        };
+        self.steer = self.shimmy_amplitude_rad
+            * (2.0 * std::f64::consts::PI * self.shimmy_hz * self.t).sin();
     }
     fn set_decel_demand(&mut self, a_mps2: f64) {
         self.a_dem = a_mps2;
@@ -134,13 +141,111 @@ impl Plant for PointMass {
         self.v
     }
     fn accel_mps2(&self) -> f64 {
-        if self.v > 0.0 {
-            -self.a_dem
-        } else {
-            0.0
-        }
+        self.accel
     }
     fn steering_wheel_rad(&self) -> f64 {
         self.steer
+    }
+}
+/// The project's 5-DOF shimmy model (`shimmy::model::Simulator`, MODEL.md) as the plant, with
+/// the longitudinal demand as an external input each step (replacing MODEL.md §6's single event
+/// law) so whole drive cycles can be run.
+///
+/// Limits of the model that the adapter reports as scenario errors rather than approximating:
+/// one clearance value for both joints (dual) or the left joint only (single, MODEL.md §4), and
+/// no change of clearance during a run (so no wear growth).
+pub struct ModelPlant {
+    sim: shimmy::model::Simulator,
+    v_prev: f64,
+    accel: f64,
+}
+
+impl ModelPlant {
+    /// Build the model for `sc`, with vehicle parameters from `vehicle` (MODEL.md §9 defaults
+    /// when `None`) and the scenario's excitation (§7) written into them.
+    pub fn new(
+        sc: &crate::scenario::Scenario,
+        vehicle: Option<&std::path::Path>,
+    ) -> anyhow::Result<ModelPlant> {
+        use anyhow::{bail, Context};
+        use shimmy::model::{JointMode, Scenario as ModelScenario, Simulator, VehicleParams};
+        let mut p = match vehicle {
+            Some(path) => VehicleParams::from_toml_file(path)
+                .with_context(|| format!("vehicle file {}", path.display()))?,
+            None => VehicleParams::default(),
+        };
+        p.excitation.unbalance_kgm = sc.excitation.unbalance_kgm;
+        p.excitation.noise_std_nm = sc.excitation.road_noise_nm;
+        let c = &sc.clearance;
+        if let (crate::scenario::ClearanceMode::Dual, Some(r)) = (c.mode, c.right_mm) {
+            if (r - c.left_mm).abs() > 1e-12 {
+                bail!(
+                    "clearance.right_mm = {r} differs from clearance.left_mm = {}: the model \
+                     (MODEL.md §4) has one clearance for both joints; use equal values or \
+                     mode = \"single\"",
+                    c.left_mm
+                );
+            }
+        }
+        if c.growth_mm_per_km > 0.0 {
+            bail!(
+                "clearance.growth_mm_per_km = {}: the model (shimmy::model::Simulator) cannot \
+                 change its clearance during a run yet; set it to 0",
+                c.growth_mm_per_km
+            );
+        }
+        if c.left_mm <= 0.0 {
+            bail!("clearance.left_mm must be > 0 for the model (a new joint has about 0.03 mm)");
+        }
+        let msc = ModelScenario {
+            clearance_m: c.left_mm * 1e-3,
+            joints: match c.mode {
+                crate::scenario::ClearanceMode::Dual => JointMode::Dual,
+                crate::scenario::ClearanceMode::Single => JointMode::Single,
+            },
+            seed: sc.seed,
+            v0_mps: sc.drive.start_speed_kmh / 3.6,
+            duration_s: crate::sim::estimate_duration_s(sc).clamp(1.0, 3600.0),
+            h_s: sc.step_s,
+            unbalance: sc.excitation.unbalance_kgm > 0.0,
+            noise: sc.excitation.road_noise_nm > 0.0,
+            // Same solution as plain RK4 (to 1e-10 slip), fewer Newton iterations.
+            integrator: shimmy::model::Integrator::Rk4WarmSlip,
+            ..ModelScenario::default()
+        };
+        let sim = Simulator::new(&p, &msc).context("cannot set up the shimmy model")?;
+        let v = sim.state()[shimmy::model::rhs::ix::V];
+        Ok(ModelPlant {
+            sim,
+            v_prev: v,
+            accel: 0.0,
+        })
+    }
+}
+
+impl Plant for ModelPlant {
+    fn t_s(&self) -> f64 {
+        self.sim.t()
+    }
+    fn step(&mut self) {
+        self.sim.step();
+        let v = self.speed_mps();
+        self.accel = (v - self.v_prev) / self.sim.h();
+        self.v_prev = v;
+    }
+    fn set_decel_demand(&mut self, a_mps2: f64) {
+        self.sim.set_decel_demand(a_mps2);
+    }
+    fn set_clearance_m(&mut self, _left_m: f64, _right_m: f64) {
+        // Rejected in `new` (no wear growth with this model yet).
+    }
+    fn speed_mps(&self) -> f64 {
+        self.sim.state()[shimmy::model::rhs::ix::V]
+    }
+    fn accel_mps2(&self) -> f64 {
+        self.accel
+    }
+    fn steering_wheel_rad(&self) -> f64 {
+        self.sim.model().delta_sw(self.sim.state())
     }
 }

@@ -19,6 +19,9 @@ enum Cmd {
     Estimate(shimmy::cli::estimate::Args),
     /// Build the clearance estimator's response table from the shimmy model.
     Calibrate(shimmy::cli::calibrate::Args),
+    Simulate(shimmy::cli::simulate::Args),
+    /// Rerun the source article's experiments on the model and regenerate docs/REPRODUCTION.md.
+    Reproduce(shimmy::cli::reproduce::Args),
 }
 
 fn main() {
@@ -27,6 +30,8 @@ fn main() {
         Cmd::Decode(a) => shimmy::cli::decode::run(a),
         Cmd::Estimate(a) => shimmy::cli::estimate::run(a),
         Cmd::Calibrate(a) => shimmy::cli::calibrate::run(a),
+        Cmd::Simulate(a) => shimmy::cli::simulate::run(a),
+        Cmd::Reproduce(a) => shimmy::cli::reproduce::run(a),
     };
     if let Err(e) = result {
         eprintln!("shimmy: error: {e:#}");

@@ -12,35 +12,47 @@ use std::path::PathBuf;
 use anyhow::Context as _;
 
 use crate::dbc::{Database, DecodeError, Message, RawValue};
+use crate::signals::mapping::MappingConfig;
+use crate::signals::{Mapper, Outcome, Reject, Validity, VehicleSignals};
 use crate::source::{CanSource, Skip, SourceStats};
 use crate::wire::{Frame, FrameKind};
 
-/// Decode CAN logs with a DBC file.
-///
-/// Reads each LOG in turn (candump -L, Vector ASC or BLF, detected from the content) and prints
-/// one record per frame whose ID the DBC defines. Value-table entries stay numbers. At the end a
-/// summary goes to stderr: frames read, decoded, with unknown IDs, refused (a multiplexer value
-/// the DBC does not define, as cantools refuses them), short frames whose missing signals were
-/// left out, non-data frames, and what the log reader skipped (with file:line).
-///
-/// JSON lines (default), one object per decoded frame:
-///   {"t": 46408.584954, "id": 180, "extended": false, "msg": "SPEED",
-///    "signals": {"ENCODER": 29, "SPEED": 29.38}}
-/// with --raw also "raw": {...} holding the unscaled values. Non-finite values (a float signal
-/// holding NaN or infinity) are written as null.
-///
-/// CSV: a header `t,id,extended,msg,signal,value` (plus `raw` with --raw), then one row per
-/// decoded signal.
+/// The manual part of `shimmy decode --help`.
+const MANUAL: &str = "\
+Reads each LOG in turn (candump -L, Vector ASC or BLF, detected from the content) and prints one
+record per frame whose ID the DBC defines. Value-table entries stay numbers. At the end a summary
+goes to stderr: frames read, decoded, with unknown IDs, refused (a multiplexer value the DBC does
+not define, as cantools refuses them), short frames whose missing signals were left out,
+remote/error frames, and what the log reader skipped (with file:line).
+
+JSON lines (default), one object per decoded frame:
+  {\"t\": 46408.584954, \"id\": 180, \"extended\": false, \"msg\": \"SPEED\",
+   \"signals\": {\"ENCODER\": 29, \"SPEED\": 29.38, \"CHECKSUM\": 94}}
+With --raw also \"raw\": {...} holding the unscaled values. Non-finite values (a float signal
+holding NaN or infinity) are written as null.
+
+CSV: a header t,id,extended,msg,signal,value (plus raw with --raw), then one row per decoded
+signal.
+
+Example:
+  shimmy decode --dbc toyota_new_mc_pt_generated.dbc rav4_2017_seg40_bus0.log | head";
+
+/// Arguments of `shimmy decode`.
 #[derive(clap::Args, Debug)]
-#[command(verbatim_doc_comment)]
+#[command(after_long_help = MANUAL)]
 pub struct Args {
     /// DBC file describing the bus (UTF-8 or Windows-1252). Statements it cannot use are
     /// skipped and counted; see --dbc-report.
     #[arg(long, value_name = "FILE")]
     pub dbc: PathBuf,
 
-    /// Signal mapping (TOML) to print the monitor's quantities instead of raw signals.
-    /// Not supported yet by this build.
+    /// Signal mapping (TOML, see config/mappings/) to print the monitor's quantities instead
+    /// of raw signals: one record per frame of a mapped message, with steering-wheel angle
+    /// (deg), speed (km/h), brake pressure (bar), brake pressed, longitudinal acceleration
+    /// (m/s^2), each with its validity (valid, no_data, timed_out, not_mapped; a value is
+    /// printed only while valid), and why the frame was rejected if it was (checksum, counter,
+    /// short). The summary lists, per message, frames, accepted, checksum and counter errors,
+    /// counter gaps, short frames and timeouts.
     #[arg(long, value_name = "FILE")]
     pub mapping: Option<PathBuf>,
 
@@ -383,13 +395,6 @@ fn open_log(path: &std::path::Path) -> anyhow::Result<Box<dyn CanSource>> {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    if args.mapping.is_some() {
-        anyhow::bail!(
-            "--mapping is not supported yet: mapped quantities (steering angle, brake, speed, \
-             acceleration) are not available in this build; run without --mapping to print the \
-             DBC signals"
-        );
-    }
     let (db, report) = Database::load(&args.dbc)?;
     if args.dbc_report {
         eprint!("{}: {report}", args.dbc.display());
@@ -399,6 +404,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.dbc.display(),
             report.skipped.len()
         );
+    }
+    if let Some(mapping) = &args.mapping {
+        return run_mapped(&args, &db, mapping);
     }
     let opts = Options {
         format: args.format,
@@ -420,6 +428,273 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     eprintln!("{}", summary.report());
     match result {
         // A closed pipe (`| head`) is a normal way to stop.
+        Err(e)
+            if e.downcast_ref::<io::Error>()
+                .is_some_and(|io| io.kind() == io::ErrorKind::BrokenPipe) =>
+        {
+            Ok(())
+        }
+        other => other,
+    }
+}
+
+// --- `--mapping`: the monitor's quantities instead of DBC signals ---------------------------
+
+/// Counters of a `--mapping` run (the per-message ones live in the [`Mapper`]).
+#[derive(Clone, Debug, Default)]
+pub struct MappedSummary {
+    /// Frames delivered by the sources.
+    pub frames: u64,
+    /// Frames of mapped messages (accepted or rejected), one record each.
+    pub mapped: u64,
+    /// Reader counters, summed over the logs.
+    pub source: SourceStats,
+    /// Reader skip reports (bounded by the reader).
+    pub skips: Vec<Skip>,
+}
+
+impl MappedSummary {
+    /// The human summary printed at the end: totals, then one line per mapped message.
+    pub fn report(&self, mapper: &Mapper) -> String {
+        let mut s = format!(
+            "mapping summary: {} frames read, {} of mapped messages, {} of other messages; \
+             log reader: {} malformed, {} skipped, {} dropped, {} backwards timestamps",
+            self.frames,
+            self.mapped,
+            mapper.ignored_frames(),
+            self.source.malformed,
+            self.source.skipped,
+            self.source.dropped,
+            self.source.backwards_timestamps,
+        );
+        for m in mapper.stats() {
+            s.push_str(&format!(
+                "\n  {} (0x{:X}{}): {} frames, {} accepted, {} checksum errors, {} counter errors, \
+                 {} counter gaps ({} frames lost), {} short, {} timeouts (> {} ms){}",
+                m.name,
+                m.id,
+                if m.extended { " ext" } else { "" },
+                m.frames,
+                m.accepted,
+                m.checksum_errors,
+                m.counter_errors,
+                m.counter_gaps,
+                m.frames_lost,
+                m.short_frames,
+                m.timeouts,
+                m.timeout_ms,
+                if m.frames == 0 { ", NEVER RECEIVED" } else { "" },
+            ));
+        }
+        for k in &self.skips {
+            s.push_str(&format!("\n  skipped {}: {}", k.location, k.reason));
+        }
+        s
+    }
+}
+
+fn validity_str(v: Validity) -> &'static str {
+    match v {
+        Validity::Valid => "valid",
+        Validity::NotMapped => "not_mapped",
+        Validity::NoData => "no_data",
+        Validity::TimedOut => "timed_out",
+    }
+}
+
+/// Write the CSV header of the `--mapping` output.
+pub fn write_mapped_header<W: Write>(w: &mut W, format: Format) -> io::Result<()> {
+    if format == Format::Csv {
+        w.write_all(
+            b"t,msg,steer_angle_deg,steer_angle_validity,speed_kmh,speed_validity,\
+brake_pressure_bar,brake_pressure_validity,brake_pressed,brake_pressed_validity,\
+accel_mps2,accel_validity,rejected\n",
+        )?;
+    }
+    Ok(())
+}
+
+/// Interpret every frame of `source` with `mapper` and write one record per frame of a mapped
+/// message into `out`. Allocates nothing per frame.
+pub fn decode_mapped<W: Write>(
+    mapper: &mut Mapper,
+    source: &mut dyn CanSource,
+    out: &mut W,
+    format: Format,
+    summary: &mut MappedSummary,
+) -> io::Result<()> {
+    let names: Vec<String> = mapper
+        .stats()
+        .iter()
+        .map(|m| match format {
+            Format::Jsonl => json_str(&m.name),
+            Format::Csv => csv_str(&m.name),
+        })
+        .collect();
+    while let Some(frame) = source.next_frame()? {
+        summary.frames += 1;
+        let Some(u) = mapper.on_frame(&frame) else {
+            continue;
+        };
+        summary.mapped += 1;
+        let snap = mapper.snapshot(frame.t_ns);
+        let rejected = match u.outcome {
+            Outcome::Accepted(_) => None,
+            Outcome::Rejected(r) => Some(r),
+        };
+        write_mapped(out, &frame, &names[u.message], &snap, rejected, format)?;
+    }
+    summary.add(&source.stats());
+    summary.skips.extend(source.take_skips());
+    Ok(())
+}
+
+impl MappedSummary {
+    fn add(&mut self, s: &SourceStats) {
+        self.source.frames += s.frames;
+        self.source.malformed += s.malformed;
+        self.source.skipped += s.skipped;
+        self.source.error_frames += s.error_frames;
+        self.source.backwards_timestamps += s.backwards_timestamps;
+        self.source.dropped += s.dropped;
+    }
+}
+
+fn write_mapped<W: Write>(
+    out: &mut W,
+    frame: &Frame,
+    name: &str,
+    s: &VehicleSignals,
+    rejected: Option<Reject>,
+    format: Format,
+) -> io::Result<()> {
+    // Back to the edge units, rounded to 1e-9 so that SI round trips print as the bus sent
+    // them (29.38 km/h, not 29.380000000000003): far below any sensor's resolution.
+    let edge = |v: f64| (v * 1e9).round() / 1e9;
+    let steer = s.steer_angle_rad.valid().map(|v| edge(v.to_degrees()));
+    let speed = s.speed_mps.valid().map(|v| edge(v * 3.6));
+    let pressure = s.brake_pressure_pa.valid().map(|v| edge(v * 1e-5));
+    let accel = s.accel_mps2.valid().map(edge);
+    let nums = [
+        (
+            "steer_angle_deg",
+            "steer_angle",
+            steer,
+            s.steer_angle_rad.validity,
+        ),
+        ("speed_kmh", "speed", speed, s.speed_mps.validity),
+        (
+            "brake_pressure_bar",
+            "brake_pressure",
+            pressure,
+            s.brake_pressure_pa.validity,
+        ),
+    ];
+    let pressed = s.brake_pressed.valid();
+    match format {
+        Format::Jsonl => {
+            out.write_all(b"{\"t\": ")?;
+            write_time(out, frame.t_ns)?;
+            write!(out, ", \"msg\": {name}")?;
+            for (key, _, v, _) in nums {
+                write!(out, ", \"{key}\": ")?;
+                match v {
+                    Some(v) => write_num(out, v, format)?,
+                    None => out.write_all(b"null")?,
+                }
+            }
+            match pressed {
+                Some(p) => write!(out, ", \"brake_pressed\": {p}")?,
+                None => out.write_all(b", \"brake_pressed\": null")?,
+            }
+            out.write_all(b", \"accel_mps2\": ")?;
+            match accel {
+                Some(v) => write_num(out, v, format)?,
+                None => out.write_all(b"null")?,
+            }
+            out.write_all(b", \"validity\": {")?;
+            for (_, quantity, _, v) in nums {
+                write!(out, "\"{quantity}\": \"{}\", ", validity_str(v))?;
+            }
+            write!(
+                out,
+                "\"brake_pressed\": \"{}\", \"accel\": \"{}\"}}",
+                validity_str(s.brake_pressed.validity),
+                validity_str(s.accel_mps2.validity)
+            )?;
+            if let Some(r) = rejected {
+                // Reject texts hold no characters that need JSON escaping.
+                write!(out, ", \"rejected\": \"{r}\"")?;
+            }
+            out.write_all(b"}\n")
+        }
+        Format::Csv => {
+            write_time(out, frame.t_ns)?;
+            write!(out, ",{name}")?;
+            for (_, _, v, validity) in nums {
+                out.write_all(b",")?;
+                if let Some(v) = v {
+                    write_num(out, v, format)?;
+                }
+                write!(out, ",{}", validity_str(validity))?;
+            }
+            match pressed {
+                Some(p) => write!(out, ",{}", p as u8)?,
+                None => out.write_all(b",")?,
+            }
+            write!(out, ",{}", validity_str(s.brake_pressed.validity))?;
+            out.write_all(b",")?;
+            if let Some(v) = accel {
+                write_num(out, v, format)?;
+            }
+            write!(out, ",{},", validity_str(s.accel_mps2.validity))?;
+            if let Some(r) = rejected {
+                // Reject texts hold no commas or quotes.
+                write!(out, "{r}")?;
+            }
+            out.write_all(b"\n")
+        }
+    }
+}
+
+fn run_mapped(args: &Args, db: &Database, mapping: &std::path::Path) -> anyhow::Result<()> {
+    if args.raw {
+        anyhow::bail!(
+            "--raw has no meaning with --mapping (mapped quantities are physical values)"
+        );
+    }
+    let cfg = MappingConfig::from_toml_file(mapping)?;
+    let mut mapper = Mapper::new(db, &cfg).with_context(|| {
+        format!(
+            "mapping {} does not fit DBC {}",
+            mapping.display(),
+            args.dbc.display()
+        )
+    })?;
+    for w in mapper.warnings() {
+        eprintln!("{}: warning: {w}", mapping.display());
+    }
+    let stdout = io::stdout();
+    let mut out = io::BufWriter::with_capacity(1 << 16, stdout.lock());
+    let mut summary = MappedSummary::default();
+    let result = (|| -> anyhow::Result<()> {
+        write_mapped_header(&mut out, args.format)?;
+        for log in &args.logs {
+            let mut src = open_log(log)?;
+            decode_mapped(
+                &mut mapper,
+                src.as_mut(),
+                &mut out,
+                args.format,
+                &mut summary,
+            )
+            .with_context(|| format!("reading {}", log.display()))?;
+        }
+        out.flush()?;
+        Ok(())
+    })();
+    eprintln!("{}", summary.report(&mapper));
+    match result {
         Err(e)
             if e.downcast_ref::<io::Error>()
                 .is_some_and(|io| io.kind() == io::ErrorKind::BrokenPipe) =>

@@ -4,3 +4,5 @@
 pub mod calibrate;
 pub mod decode;
 pub mod estimate;
+pub mod simulate;
+pub mod reproduce;

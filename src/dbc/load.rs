@@ -333,11 +333,13 @@ enum PendingMux {
     Value(u64),
 }
 
+/// One `SG_MUL_VAL_` entry: signal name, switch name, inclusive ranges, line.
+type ExtMux = (String, String, Vec<(u64, u64)>, usize);
+
 struct Building {
     msg: Message,
     pending: Vec<PendingMux>,
-    /// (signal name, switch name, ranges, line) from `SG_MUL_VAL_`.
-    ext_mux: Vec<(String, String, Vec<(u64, u64)>, usize)>,
+    ext_mux: Vec<ExtMux>,
 }
 
 fn convert_signal(s: &can_dbc::Signal, line: usize) -> Result<(Signal, PendingMux, bool), String> {
@@ -670,7 +672,7 @@ pub(crate) fn parse(text: &str) -> (Database, LoadReport) {
             let ms = match a.value {
                 can_dbc::AttributeValue::Uint(u) => u32::try_from(u).ok(),
                 can_dbc::AttributeValue::Int(i) => u32::try_from(i).ok(),
-                can_dbc::AttributeValue::Double(f) if f >= 0.0 && f < 4e9 => Some(f as u32),
+                can_dbc::AttributeValue::Double(f) if (0.0..4e9).contains(&f) => Some(f as u32),
                 _ => None,
             };
             if let (Some(i), Some(ms)) = (find(a.message_id), ms) {

@@ -11,7 +11,8 @@
 //! A payload shorter than the message's length is not an error: signals that fit are decoded,
 //! the others are counted in [`DecodeSummary::truncated`]. Decoding allocates nothing.
 
-use super::signal::{RawValue, Signal};
+use super::bits::ByteOrder;
+use super::signal::{RawValue, Signal, ValueKind};
 
 /// Counts for one decoded frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -39,6 +40,62 @@ pub(crate) struct SwitchCheck {
     pub valid: Vec<(u64, u64)>,
 }
 
+/// The per-signal numbers the decode loop needs, packed together (a [`Signal`] also carries
+/// names, units and tables, which would spread the loop over many cache lines).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Hot {
+    /// Right shift of the 8-byte word (little-endian word for Intel, big-endian for Motorola)
+    /// that brings the signal's LSB to bit 0; only valid when `needed <= 8`.
+    word_shift: u8,
+    big_endian: bool,
+    needed: u8,
+    /// 64 - size: shift pair that sign-extends.
+    sign_shift: u8,
+    kind: ValueKind,
+    mask: u64,
+    factor: f64,
+    offset: f64,
+}
+
+impl Hot {
+    fn new(s: &Signal) -> Hot {
+        let l = s.layout;
+        let needed = l.needed_len();
+        let word_shift = if needed <= 8 {
+            match l.order {
+                ByteOrder::LittleEndian => l.first_byte as u32 * 8 + l.shift as u32,
+                ByteOrder::BigEndian => (8 - needed as u32) * 8 + l.shift as u32,
+            }
+        } else {
+            0
+        };
+        Hot {
+            word_shift: word_shift as u8,
+            big_endian: l.order == ByteOrder::BigEndian,
+            needed: needed.min(255) as u8,
+            sign_shift: 64 - l.size,
+            kind: s.kind,
+            mask: l.mask,
+            factor: s.factor,
+            offset: s.offset,
+        }
+    }
+
+    #[inline(always)]
+    fn raw(&self, le: u64, be: u64) -> RawValue {
+        let w = if self.big_endian { be } else { le };
+        let bits = (w >> self.word_shift) & self.mask;
+        match self.kind {
+            ValueKind::Unsigned => RawValue::Unsigned(bits),
+            ValueKind::Signed => {
+                RawValue::Signed(((bits << self.sign_shift) as i64) >> self.sign_shift)
+            }
+            ValueKind::Float32 => RawValue::F32(f32::from_bits(bits as u32)),
+            ValueKind::Float64 => RawValue::F64(f64::from_bits(bits)),
+        }
+    }
+}
+
 /// One message of a database.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Message {
@@ -59,6 +116,10 @@ pub struct Message {
     pub(crate) switch_checks: Vec<SwitchCheck>,
     /// Some signal has a multiplexing condition (set by [`Message::finish`]).
     multiplexed: bool,
+    /// Packed copies of the signals' layouts and scaling (set by [`Message::finish`]).
+    hot: Vec<Hot>,
+    /// Every signal lies within the first 8 bytes (the one-word fast path applies).
+    within_8: bool,
 }
 
 /// Whether a signal is present in a given payload.
@@ -84,6 +145,8 @@ impl Message {
             line: 0,
             switch_checks: Vec::new(),
             multiplexed: false,
+            hot: Vec::new(),
+            within_8: true,
         }
     }
 
@@ -97,7 +160,8 @@ impl Message {
         self.multiplexed
     }
 
-    /// Recompute the multiplexer bookkeeping after `signals` changed. Returns an error naming
+    /// Recompute the decoding tables after `signals` changed (decoding reads them, so call
+    /// this after any change to `signals`). Returns an error naming
     /// the signal when the conditions form a cycle (such a message cannot be decoded).
     pub fn finish(&mut self) -> Result<(), String> {
         // Cycle check: follow switches at most signals.len() steps.
@@ -145,6 +209,8 @@ impl Message {
         }
         self.switch_checks = checks;
         self.multiplexed = self.signals.iter().any(|s| s.multiplexer.is_some());
+        self.hot = self.signals.iter().map(Hot::new).collect();
+        self.within_8 = self.signals.iter().all(|s| s.needed_len() <= 8);
         Ok(())
     }
 
@@ -199,6 +265,27 @@ impl Message {
         mut f: F,
     ) -> Result<DecodeSummary, DecodeError> {
         let mut sum = DecodeSummary::default();
+        if !self.multiplexed
+            && self.switch_checks.is_empty()
+            && self.within_8
+            && self.hot.len() == self.signals.len()
+        {
+            // Fast path: one 8-byte word, one shift and mask per signal.
+            let mut buf = [0u8; 8];
+            let n = data.len().min(8);
+            buf[..n].copy_from_slice(&data[..n]);
+            let (le, be) = (u64::from_le_bytes(buf), u64::from_be_bytes(buf));
+            for (i, h) in self.hot.iter().enumerate() {
+                if h.needed as usize > data.len() {
+                    sum.truncated += 1;
+                    continue;
+                }
+                let raw = h.raw(le, be);
+                f(i, raw, raw.as_f64() * h.factor + h.offset);
+                sum.decoded += 1;
+            }
+            return Ok(sum);
+        }
         if !self.multiplexed && self.switch_checks.is_empty() {
             for (i, s) in self.signals.iter().enumerate() {
                 match s.raw(data) {

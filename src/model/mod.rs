@@ -9,6 +9,7 @@
 
 pub mod braking;
 pub mod excitation;
+pub mod features;
 pub mod geometry;
 pub mod integrate;
 pub mod joint;

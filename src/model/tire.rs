@@ -141,8 +141,14 @@ impl PureSlip {
         }
         let a_deg = s.atan() * RAD2DEG;
         let inv = 1.0 / s;
+        // κ = 0 (no braking) gives F_x = 0 exactly; skip the curve evaluation.
+        let fx = if kappa == 0.0 {
+            0.0
+        } else {
+            self.fx.eval(s * 100.0) * kappa * inv
+        };
         (
-            self.fx.eval(s * 100.0) * kappa * inv,
+            fx,
             self.fy.eval(a_deg) * alpha_t * inv,
             self.mz.eval(a_deg) * alpha_t * inv,
         )

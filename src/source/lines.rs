@@ -117,7 +117,10 @@ impl<R: Read> LineReader<R> {
 mod tests {
     use super::*;
 
-    fn collect(input: &[u8], cap: usize) -> Vec<(u64, Option<(Vec<u8>, bool)>)> {
+    /// (line number, Some((bytes, terminated)) or None for an over-long line)
+    type Got = Vec<(u64, Option<(Vec<u8>, bool)>)>;
+
+    fn collect(input: &[u8], cap: usize) -> Got {
         let mut r = LineReader::with_capacity(input, cap);
         let mut out = Vec::new();
         while let Some(l) = r.next_line().unwrap() {

@@ -2,7 +2,8 @@
 //! whatever the file's size. It recognises the format by content, then by extension:
 //! a `LOGG` signature is Vector BLF; a Vector ASC header (`date`, `base`, `Begin Triggerblock`)
 //! is ASC; otherwise `.blf` / `.asc` extensions decide, and everything else is read as
-//! can-utils `candump -L`.
+//! can-utils `candump -L`. A gzip-compressed file (`.log.gz`, `.asc.gz`) is decompressed on
+//! the fly and the same rules applied to its contents.
 //!
 //! Policy lives here, not in [`crate::wire`]: a malformed line or record is counted in
 //! [`SourceStats::malformed`], and the first [`DEFAULT_MAX_REPORTS`] are reported through
@@ -130,8 +131,16 @@ impl LogReader {
             }
         }
         head.truncate(n);
+        let chained: BoxRead = Box::new(io::Cursor::new(head.clone()).chain(reader));
+        if head.starts_with(&[0x1F, 0x8B]) {
+            // gzip-compressed log (`.log.gz`, `.asc.gz`...): decompress on the fly (32 KiB
+            // window, still constant memory) and detect the format inside.
+            let inner = flate2::read::MultiGzDecoder::new(chained);
+            let mut r = Self::from_reader(inner, name.with_extension(""))?;
+            r.name = name.display().to_string();
+            return Ok(r);
+        }
         let format = LogFormat::detect(name, &head);
-        let chained: BoxRead = Box::new(io::Cursor::new(head).chain(reader));
         Ok(Self::with_format(chained, name, format))
     }
 

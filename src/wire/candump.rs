@@ -545,7 +545,7 @@ pub fn format_frame(f: &Frame, out: &mut [u8; 256]) -> io::Result<usize> {
         put(digits[k]);
     }
     put(b'.');
-    let (frac, nd) = if ns % 1000 == 0 {
+    let (frac, nd) = if ns.is_multiple_of(1000) {
         (ns / 1000, 6)
     } else {
         (ns, 9)

@@ -266,13 +266,13 @@ EOF
 # Reads a console log and prints the summary; returns 0 only if every step passed.
 summarize() {
     local logf=$1 wall=$2 expected=$3
-    local results failed done_line booted
-    results=$(grep -a '^SHIMMY-VM-RESULT ' "$logf" || true)
-    failed=$(grep -a '^SHIMMY-VM-RESULT ' "$logf" | grep -av ' rc=0 ' || true)
-    done_line=$(grep -a '^SHIMMY-VM-DONE ' "$logf" || true)
-    booted=$(grep -a '^SHIMMY-VM-BOOTED ' "$logf" | sed 's/.*uptime_s=\([^ ]*\).*/\1/' || true)
-    local n
-    n=$(grep -ac '^SHIMMY-VM-RESULT ' "$logf" || true)
+    local results failed done_line booted n
+    # Markers are matched anywhere in a line: the firmware's terminal escapes can precede them.
+    results=$(grep -ao 'SHIMMY-VM-RESULT .*' "$logf" || true)
+    failed=$(grep -v ' rc=0 ' <<<"$results" | grep . || true)
+    done_line=$(grep -ao 'SHIMMY-VM-DONE .*' "$logf" || true)
+    booted=$(grep -ao 'SHIMMY-VM-BOOTED uptime_s=[0-9.]*' "$logf" | sed 's/.*=//' || true)
+    n=$(grep -c . <<<"$results" || true)
     echo "SHIMMY-VM-SUMMARY steps=$n expected=$expected failed=$(grep -c . <<<"$failed" || true) guest_boot_s=${booted:-?} wall_s=$wall"
     [ -n "$results" ] && [ -z "$failed" ] && [ -n "$done_line" ] && [ "$n" = "$expected" ]
 }

@@ -1,0 +1,46 @@
+//! Speed of the shimmy model (issue 3 "must show"): one 10 s braking event (MODEL.md §6 defaults:
+//! dual clearance 0.1 mm, 55 km/h, 0.5 g, seed 0) at h = 1e-4 s, i.e. 10^5 RK4 steps, on one
+//! core. Results and the command are in docs/BENCHMARKS.md ("Shimmy model").
+//!
+//! `rk4_spec`: MODEL.md §10/§5.3 as written (8 cold Newton steps of the slip inversion per
+//! right-hand-side evaluation). `rk4_warm_slip`: the same RK4 with the Newton iteration
+//! warm-started and stopped at convergence. `run_1khz`: `shimmy::model::run`, i.e. the
+//! specified scheme plus the 1 kHz output trace.
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use shimmy::model::{run, Integrator, Scenario, Simulator, VehicleParams};
+use std::hint::black_box;
+
+fn event(integrator: Integrator) -> f64 {
+    let p = VehicleParams::default();
+    let sc = Scenario {
+        integrator,
+        ..Scenario::default()
+    };
+    let mut sim = Simulator::new(&p, &sc).expect("default scenario is valid");
+    for _ in 0..100_000 {
+        sim.step();
+    }
+    sim.state()[0]
+}
+
+fn bench(c: &mut Criterion) {
+    let mut g = c.benchmark_group("model_10s_event_h1e-4");
+    g.sample_size(10);
+    g.bench_function("rk4_spec", |b| {
+        b.iter(|| black_box(event(black_box(Integrator::Rk4))))
+    });
+    g.bench_function("rk4_warm_slip", |b| {
+        b.iter(|| black_box(event(black_box(Integrator::Rk4WarmSlip))))
+    });
+    g.bench_function("run_1khz", |b| {
+        b.iter(|| {
+            let tr = run(&VehicleParams::default(), &Scenario::default()).unwrap();
+            black_box(tr.samples.len())
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

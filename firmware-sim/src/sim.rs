@@ -1,0 +1,353 @@
+//! One firmware-sim run: the drive cycle drives the plant step by step, the driver's lane keeping
+//! is added at the steering wheel, the ECUs of the reference bus sample the result, and frames
+//! come out in time order, as an [`Iterator`] and as a [`CanSource`]. When the run ends,
+//! [`FirmwareSim::ground_truth`] describes what was really simulated.
+//!
+//! Deterministic given the scenario seed: every random choice draws from a ChaCha8 stream
+//! seeded with it (one stream per purpose, so enabling a fault leaves the sensor noise alone).
+//!
+//! Not here: writing the frames anywhere (see the binary) or the sensor details
+//! ([`crate::bus`]). A step allocates nothing, except that the 1 kHz δ_sw trace kept for the
+//! ground truth grows (amortised; reserved up front from the scenario's length).
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use shimmy::source::{CanSource, SourceStats};
+use shimmy::wire::Frame;
+
+use crate::bus::{ReferenceBus, Sample, MAX_BATCH};
+use crate::drive::{DriveCmd, Driver};
+use crate::plant::{LaneKeeping, Plant};
+use crate::scenario::{ClearanceMode, Scenario, Segment};
+use crate::truth::{self, GroundTruth};
+
+/// Rate of the δ_sw trace kept for the ground truth (Hz), MODEL.md §10's output rate.
+pub const TRACE_HZ: f64 = 1000.0;
+/// Safety limit on simulated time beyond the scenario's own estimate (s).
+const EXTRA_TIME_S: f64 = 600.0;
+
+/// Scenario identity for the sidecar.
+#[derive(Clone, Debug, Default)]
+pub struct RunInfo {
+    pub scenario_file: Option<String>,
+    pub vehicle_file: Option<String>,
+}
+
+/// A running simulation.
+pub struct FirmwareSim<P: Plant> {
+    scenario: Scenario,
+    info: RunInfo,
+    plant: P,
+    driver: Driver,
+    lane: LaneKeeping,
+    lane_rng: ChaCha8Rng,
+    lane_rad: f64,
+    bus: ReferenceBus,
+    batch: heapless::Vec<Frame, MAX_BATCH>,
+    batch_pos: usize,
+    h_s: f64,
+    steps: u64,
+    trace_every: u64,
+    trace: Vec<f64>,
+    distance_m: f64,
+    clearance_mm: (f64, f64),
+    /// Clearance when each event began.
+    event_clearance: Vec<(f64, f64)>,
+    last_cmd: DriveCmd,
+    t_limit_s: f64,
+    started: bool,
+    done: bool,
+    truncated: bool,
+    frames_out: u64,
+}
+
+impl<P: Plant> FirmwareSim<P> {
+    /// Start a run of `scenario` on `plant`, with the reference bus built from `dbc_text`.
+    pub fn new(
+        scenario: &Scenario,
+        plant: P,
+        dbc_text: &str,
+        info: RunInfo,
+    ) -> anyhow::Result<FirmwareSim<P>> {
+        scenario.validate()?;
+        let h = scenario.step_s;
+        let t0_ns = (scenario.start_unix_s * 1e9).round() as i64;
+        let bus = ReferenceBus::new(
+            dbc_text,
+            &scenario.sensors,
+            &scenario.faults,
+            scenario.seed,
+            t0_ns,
+        )?;
+        let trace_every = ((1.0 / TRACE_HZ) / h).round().max(1.0) as u64;
+        let mut lane_rng = ChaCha8Rng::seed_from_u64(scenario.seed);
+        lane_rng.set_stream(1);
+        let d = &scenario.driver;
+        let mut lane = LaneKeeping::new(
+            d.steer_rms_deg,
+            d.steer_tau_s,
+            d.steer_offset_deg,
+            trace_every as f64 * h,
+        );
+        lane.warm_up(&mut lane_rng);
+        let est = estimate_duration_s(scenario);
+        let clearance_mm = (scenario.clearance.left_mm, scenario.right_clearance_mm());
+        let mut sim = FirmwareSim {
+            scenario: scenario.clone(),
+            info,
+            plant,
+            driver: Driver::new(&scenario.drive, h),
+            lane,
+            lane_rng,
+            lane_rad: 0.0,
+            bus,
+            batch: heapless::Vec::new(),
+            batch_pos: 0,
+            h_s: h,
+            steps: 0,
+            trace_every,
+            trace: Vec::with_capacity((est * TRACE_HZ * 1.2) as usize + 16),
+            distance_m: 0.0,
+            clearance_mm,
+            event_clearance: Vec::new(),
+            last_cmd: DriveCmd::default(),
+            t_limit_s: est * 2.0 + EXTRA_TIME_S,
+            started: false,
+            done: false,
+            truncated: false,
+            frames_out: 0,
+        };
+        sim.lane_rad = sim.lane.step(&mut sim.lane_rng);
+        sim.trace.push(sim.plant.steering_wheel_rad());
+        Ok(sim)
+    }
+
+    /// The emulated bus (DBC, per-message counters, recorded values).
+    pub fn bus(&self) -> &ReferenceBus {
+        &self.bus
+    }
+
+    pub fn bus_mut(&mut self) -> &mut ReferenceBus {
+        &mut self.bus
+    }
+
+    /// Set the interface name written into frames.
+    pub fn set_iface(&mut self, name: &str) {
+        self.bus.set_iface(name);
+        for f in self.batch.iter_mut() {
+            f.set_iface(name);
+        }
+    }
+
+    /// Simulated time (s).
+    pub fn t_s(&self) -> f64 {
+        self.plant.t_s()
+    }
+
+    pub fn is_done(&self) -> bool {
+        self.done && self.batch_pos >= self.batch.len()
+    }
+
+    fn sample(&self) -> Sample {
+        Sample {
+            t_s: self.plant.t_s(),
+            steer_rad: self.plant.steering_wheel_rad() + self.lane_rad,
+            speed_mps: self.plant.speed_mps(),
+            accel_mps2: self.plant.accel_mps2(),
+            pedal_decel_mps2: self.last_cmd.pedal_decel_mps2,
+            brake_pressed: self.last_cmd.brake_pressed,
+        }
+    }
+
+    /// One model step; fills the frame batch with whatever became due.
+    fn step(&mut self) {
+        if !self.started {
+            // Frames due at t = 0, before the first step.
+            self.started = true;
+            let s = self.sample();
+            self.bus.poll(&s, &mut self.batch);
+            return;
+        }
+        let t = self.plant.t_s();
+        let v = self.plant.speed_mps();
+        if t >= self.t_limit_s {
+            self.done = true;
+            self.truncated = true;
+            return;
+        }
+        let n_events = self.driver.events().len();
+        let cmd = self.driver.update(t, v);
+        if self.driver.events().len() > n_events {
+            self.event_clearance.push(self.clearance_mm);
+        }
+        if cmd.done {
+            self.done = true;
+            return;
+        }
+        self.last_cmd = cmd;
+        self.plant.set_decel_demand(cmd.decel_demand_mps2);
+        self.plant.step();
+        self.steps += 1;
+        let v1 = self.plant.speed_mps();
+        self.distance_m += 0.5 * (v + v1) * self.h_s;
+        if self.scenario.clearance.growth_mm_per_km > 0.0 && self.steps % 1000 == 0 {
+            self.apply_wear();
+        }
+        if self.steps % self.trace_every == 0 {
+            self.lane_rad = self.lane.step(&mut self.lane_rng);
+            self.trace.push(self.plant.steering_wheel_rad());
+        }
+        let s = self.sample();
+        self.bus.poll(&s, &mut self.batch);
+    }
+
+    fn apply_wear(&mut self) {
+        let c = &self.scenario.clearance;
+        let grow = c.growth_mm_per_km * self.distance_m * 1e-3;
+        let left = c.left_mm + grow;
+        let right = match c.mode {
+            ClearanceMode::Dual => c.right_mm.unwrap_or(c.left_mm) + grow,
+            ClearanceMode::Single => 0.0,
+        };
+        self.clearance_mm = (left, right);
+        self.plant.set_clearance_m(left * 1e-3, right * 1e-3);
+    }
+
+    /// Run to the end, discarding frames (the ground truth still fills).
+    pub fn run_to_end(&mut self) {
+        while self.next().is_some() {}
+    }
+
+    /// What was simulated. Meaningful once the run is done (before that it covers the run so
+    /// far).
+    pub fn ground_truth(&self) -> GroundTruth {
+        let c = &self.scenario.clearance;
+        let mut events = Vec::with_capacity(self.driver.events().len());
+        for (i, ev) in self.driver.events().iter().enumerate() {
+            if !ev.t_end_s.is_finite() {
+                continue; // unfinished (run truncated)
+            }
+            let window = [ev.t_start_s, ev.t_end_s + truth::WINDOW_TAIL_S];
+            let (cl, cr) = self
+                .event_clearance
+                .get(i)
+                .copied()
+                .unwrap_or(self.clearance_mm);
+            events.push(truth::EventTruth {
+                index: i,
+                event: ev.clone(),
+                clearance_left_mm: cl,
+                clearance_right_mm: cr,
+                window_s: window,
+                sw_amplitude_deg: truth::sw_amplitude_deg(&self.trace, TRACE_HZ, window),
+            });
+        }
+        let stats = self.bus.stats();
+        GroundTruth {
+            format: truth::FORMAT,
+            scenario: truth::ScenarioId {
+                name: self.scenario.name.clone(),
+                file: self.info.scenario_file.clone(),
+                seed: self.scenario.seed,
+                vehicle_file: self.info.vehicle_file.clone(),
+            },
+            start_unix_s: self.scenario.start_unix_s,
+            duration_s: self.plant.t_s(),
+            distance_km: self.distance_m * 1e-3,
+            clearance: truth::ClearanceTruth {
+                mode: match c.mode {
+                    ClearanceMode::Dual => "dual".into(),
+                    ClearanceMode::Single => "single".into(),
+                },
+                left_mm_start: c.left_mm,
+                right_mm_start: self.scenario.right_clearance_mm(),
+                growth_mm_per_km: c.growth_mm_per_km,
+                left_mm_end: self.clearance_mm.0,
+                right_mm_end: self.clearance_mm.1,
+            },
+            events,
+            sensors: truth::SensorTruth {
+                sas_offset_deg: self.bus.sas_offset_deg(),
+            },
+            frames_sent: stats.iter().map(|s| s.sent).sum(),
+            messages: stats,
+            truncated: self.truncated,
+        }
+    }
+
+    /// The 1 kHz model δ_sw trace (rad) kept for the ground truth.
+    pub fn sw_trace(&self) -> &[f64] {
+        &self.trace
+    }
+}
+
+impl<P: Plant> Iterator for FirmwareSim<P> {
+    type Item = Frame;
+
+    fn next(&mut self) -> Option<Frame> {
+        loop {
+            if self.batch_pos < self.batch.len() {
+                let f = self.batch[self.batch_pos];
+                self.batch_pos += 1;
+                self.frames_out += 1;
+                return Some(f);
+            }
+            if self.done {
+                return None;
+            }
+            self.batch.clear();
+            self.batch_pos = 0;
+            self.step();
+        }
+    }
+}
+
+impl<P: Plant> CanSource for FirmwareSim<P> {
+    fn next_frame(&mut self) -> std::io::Result<Option<Frame>> {
+        Ok(self.next())
+    }
+
+    fn stats(&self) -> SourceStats {
+        SourceStats {
+            frames: self.frames_out,
+            ..SourceStats::default()
+        }
+    }
+}
+
+/// A generous estimate of the simulated length of a scenario (s), for reserving the trace and
+/// bounding the run.
+pub fn estimate_duration_s(sc: &Scenario) -> f64 {
+    let g = crate::drive::G;
+    let mut v = sc.drive.start_speed_kmh / 3.6;
+    let mut t = 0.0;
+    for s in &sc.drive.segments {
+        match s {
+            Segment::Cruise {
+                speed_kmh,
+                duration_s,
+            } => {
+                let target = speed_kmh / 3.6;
+                let a = if target > v {
+                    sc.drive.accel_g
+                } else {
+                    sc.drive.coast_g
+                } * g;
+                t += (target - v).abs() / a + 5.0 + duration_s;
+                v = target;
+            }
+            Segment::Brake(b) => match b.duration_s {
+                Some(d) => {
+                    t += d;
+                    v = (v - b.decel_g * g * d).max(0.0);
+                }
+                None => {
+                    t += b.ramp_in_s + v / (b.decel_g * g) + 2.0 + b.hold_s + b.ramp_out_s;
+                    v = 0.0;
+                }
+            },
+            Segment::Stand { duration_s } => t += duration_s,
+        }
+    }
+    t
+}

@@ -1,0 +1,115 @@
+//! The ground-truth sidecar (JSON) written next to every firmware-sim log: what was really
+//! simulated, so tests and accuracy figures can compare the monitor's conclusions with it.
+//!
+//! It holds the scenario identity (name, file, seed), the true clearance at the start, at the end
+//! and at each braking event (wear grows it with distance), every braking event (onset, end,
+//! initial speed, plateau deceleration) with its true steering-wheel shimmy amplitude (MODEL.md
+//! §11: the peak of the 3–25 Hz, 4th-order zero-phase band-passed δ_sw over
+//! `[t_start, t_end + 0.3 s]`, taken from the model's continuous output at 1 kHz, not from the
+//! quantised sensor), and per-message frame counts.
+//!
+//! Not here: running the simulation. All times are seconds since the start of the log; add
+//! `start_unix_s` for the frame timestamps.
+
+use serde::Serialize;
+
+use crate::bus::MessageStats;
+use crate::drive::BrakeEvent;
+
+/// Identifies the sidecar format.
+pub const FORMAT: &str = "firmware-sim ground truth v1";
+
+/// MODEL.md §11 shimmy band (Hz) and filter order.
+pub const BAND_HZ: (f64, f64) = (3.0, 25.0);
+pub const BAND_ORDER: usize = 4;
+/// MODEL.md §11: the window ends this long after the stop (s).
+pub const WINDOW_TAIL_S: f64 = 0.3;
+/// Extra signal on each side of the window given to the zero-phase filter so its start-up
+/// transients fall outside the window (s).
+pub const FILTER_PAD_S: f64 = 2.0;
+
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct GroundTruth {
+    pub format: &'static str,
+    pub scenario: ScenarioId,
+    pub start_unix_s: f64,
+    pub duration_s: f64,
+    pub distance_km: f64,
+    pub clearance: ClearanceTruth,
+    pub events: Vec<EventTruth>,
+    pub sensors: SensorTruth,
+    pub messages: Vec<MessageStats>,
+    pub frames_sent: u64,
+    /// True when the run hit the safety limit on simulated time before the drive cycle ended.
+    pub truncated: bool,
+}
+
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct ScenarioId {
+    pub name: String,
+    pub file: Option<String>,
+    pub seed: u64,
+    pub vehicle_file: Option<String>,
+}
+
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct ClearanceTruth {
+    /// `dual` or `single`.
+    pub mode: String,
+    pub left_mm_start: f64,
+    pub right_mm_start: f64,
+    pub growth_mm_per_km: f64,
+    pub left_mm_end: f64,
+    pub right_mm_end: f64,
+}
+
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct EventTruth {
+    pub index: usize,
+    #[serde(flatten)]
+    pub event: BrakeEvent,
+    /// Clearances when the event began (mm).
+    pub clearance_left_mm: f64,
+    pub clearance_right_mm: f64,
+    /// Analysis window `[t_start, t_end + 0.3]` (s).
+    pub window_s: [f64; 2],
+    /// MODEL.md §11 steering-wheel amplitude from the model's continuous δ_sw (deg).
+    pub sw_amplitude_deg: f64,
+}
+
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct SensorTruth {
+    /// Zero-point offset of the steering angle sensor (deg), a fraction of one LSB.
+    pub sas_offset_deg: f64,
+}
+
+/// The MODEL.md §11 steering-wheel amplitude (deg) of one event from δ_sw (rad) sampled at
+/// `fs_hz` from t = 0. NaN when the window holds no samples or is too short to filter.
+pub fn sw_amplitude_deg(delta_sw_rad: &[f64], fs_hz: f64, window_s: [f64; 2]) -> f64 {
+    let idx = |t: f64| ((t * fs_hz).round().max(0.0) as usize).min(delta_sw_rad.len());
+    let (w0, w1) = (idx(window_s[0]), idx(window_s[1]));
+    if w1 <= w0 {
+        return f64::NAN;
+    }
+    let (p0, p1) = (
+        idx(window_s[0] - FILTER_PAD_S),
+        idx(window_s[1] + FILTER_PAD_S),
+    );
+    match shimmy::analysis::filter::bandpass_zero_phase(
+        &delta_sw_rad[p0..p1],
+        fs_hz,
+        BAND_HZ.0,
+        BAND_HZ.1,
+        BAND_ORDER,
+    ) {
+        Ok(filtered) => shimmy::analysis::peak_abs(&filtered[w0 - p0..w1 - p0]).to_degrees(),
+        // Too short a record to filter (a run cut off right after onset).
+        Err(_) => f64::NAN,
+    }
+}
+
+impl GroundTruth {
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("ground truth is plain data")
+    }
+}
