@@ -31,8 +31,9 @@ fn table() -> ResponseTable {
         for &v in &speed_kmh {
             for _ in &decel_g {
                 let (a, b) = law(c, v);
+                let z = shimmy::observer::features::z(a.exp(), b.exp());
                 cells.push(Cell {
-                    mean: [a, b],
+                    mean: z,
                     std: [SPREAD, SPREAD],
                     corr: 0.8,
                 });
@@ -175,4 +176,19 @@ fn the_shipped_config_parses_and_equals_the_defaults() {
     let cfg = ObserverConfig::load(&path).unwrap();
     assert_eq!(cfg, ObserverConfig::default());
     assert!(ObserverConfig::from_toml_str("[alerts]\nshimmy_amplitud_deg = 1").is_err());
+}
+
+#[test]
+fn isotonic_fit_is_monotone_and_keeps_sorted_data() {
+    use shimmy::observer::table::isotonic_in_place;
+    let mut y = vec![1.0, 3.0, 2.0, 4.0, 0.0];
+    isotonic_in_place(&mut y);
+    assert!(y.windows(2).all(|w| w[0] <= w[1]), "{y:?}");
+    assert!(
+        (y.iter().sum::<f64>() - 10.0).abs() < 1e-12,
+        "pooling keeps the sum"
+    );
+    let mut s = vec![0.1, 0.2, 0.5];
+    isotonic_in_place(&mut s);
+    assert_eq!(s, vec![0.1, 0.2, 0.5]);
 }

@@ -46,7 +46,7 @@ pub struct Args {
     pub out: PathBuf,
 
     /// Number of clearances, log-spaced over --clearance-range.
-    #[arg(long, default_value_t = 14)]
+    #[arg(long, default_value_t = 10)]
     pub clearances: usize,
 
     /// Clearance range (mm), "LOW,HIGH".
@@ -54,7 +54,7 @@ pub struct Args {
     pub clearance_range: Vec<f64>,
 
     /// Initial speeds (km/h).
-    #[arg(long, value_delimiter = ',', default_value = "25,40,55,70,85,100,120")]
+    #[arg(long, value_delimiter = ',', default_value = "30,45,60,80,100,120")]
     pub speeds: Vec<f64>,
 
     /// Decelerations (g).
@@ -62,7 +62,7 @@ pub struct Args {
     pub decels: Vec<f64>,
 
     /// Seeds (nuisance draws) per cell.
-    #[arg(long, default_value_t = 6)]
+    #[arg(long, default_value_t = 3)]
     pub seeds: u32,
 
     /// First seed (keep tuning, table and validation seeds apart).
@@ -111,6 +111,23 @@ fn cell_stats(z: &[[f64; 2]]) -> Cell {
         mean: m,
         std: [s0.max(MIN_STD), s1.max(MIN_STD)],
         corr,
+    }
+}
+
+/// Replaces each cell's spread and correlation by the pooled values over all cells of the
+/// same clearance (`per_clearance` consecutive cells): with a few seeds per cell, one cell's
+/// standard deviation is a poor estimate, while the spread in ln(feature) changes little with
+/// speed and deceleration. Means stay per cell.
+fn pool_spread(cells: &mut [Cell], per_clearance: usize) {
+    for group in cells.chunks_mut(per_clearance.max(1)) {
+        let n = group.len() as f64;
+        let v0 = group.iter().map(|c| c.std[0].powi(2)).sum::<f64>() / n;
+        let v1 = group.iter().map(|c| c.std[1].powi(2)).sum::<f64>() / n;
+        let r = group.iter().map(|c| c.corr).sum::<f64>() / n;
+        for c in group.iter_mut() {
+            c.std = [v0.sqrt().max(MIN_STD), v1.sqrt().max(MIN_STD)];
+            c.corr = r.clamp(-0.95, 0.95);
+        }
     }
 }
 
@@ -188,13 +205,14 @@ pub fn build_table(
                 .map_err(|e| anyhow::anyhow!("{e:#}"))
                 .with_context(|| format!("simulating c = {c} mm, {v} km/h, {d} g, seed {seed}"))?;
             let f = &e.features;
-            z.push([f.rms_deg.max(1e-4).ln(), f.peak_deg.max(1e-4).ln()]);
+            z.push(crate::observer::features::z(f.rms_deg, f.peak_deg));
             pairs.push((f.excess_rms_deg, e.true_peak_deg));
         }
         cells.push(cell_stats(&z));
     }
+    pool_spread(&mut cells, speed_kmh.len() * decel_g.len());
     let amp = amp_map(&mut pairs, 24);
-    let t = ResponseTable {
+    let mut t = ResponseTable {
         format: FORMAT.into(),
         vehicle_hash: vehicle_hash(vehicle)?,
         sensor,
@@ -211,6 +229,7 @@ pub fn build_table(
             ranges.stiffness_damping_rel * 100.0
         ),
     };
+    t.smooth();
     t.validate()?;
     Ok(t)
 }

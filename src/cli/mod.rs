@@ -4,5 +4,5 @@
 pub mod calibrate;
 pub mod decode;
 pub mod estimate;
-pub mod simulate;
 pub mod reproduce;
+pub mod simulate;

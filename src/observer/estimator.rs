@@ -2,7 +2,8 @@
 //! updated by each used braking event and diffused between events for wear.
 //!
 //! * Prior: uniform in ln c over the grid (clearances span an order of magnitude).
-//! * Event update: the log-likelihood of the event's z = (ln rms_deg, ln peak_deg) under each
+//! * Event update: the log-likelihood of the event's z ([`super::features::z`]: floored logs of
+//!   the band-passed RMS and peak) under each
 //!   clearance's predicted bivariate normal ([`ResponseTable::predict`] at the event's speed and
 //!   deceleration), with the predicted spread inflated by `std_inflation` (model mismatch) and a
 //!   small outlier floor so one odd event cannot veto a clearance.
@@ -165,8 +166,7 @@ impl Estimator {
             self.diffuse((odometer_m - prev) / 1000.0);
         }
         self.last_odometer_m = Some(odometer_m);
-        let floor = 1e-4;
-        let z = [rms_deg.max(floor).ln(), peak_deg.max(floor).ln()];
+        let z = super::features::z(rms_deg, peak_deg);
         for ic in 0..self.ln_c.len() {
             let p = table.predict(ic, v0_kmh, decel_g);
             self.log_p[ic] += self.loglik(z, &p);

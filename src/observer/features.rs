@@ -163,6 +163,19 @@ impl Extractor {
     }
 }
 
+/// Floors (deg) added in quadrature before taking logs in [`z`]: about the sensor's own
+/// contribution, so events whose quantised signal barely moves do not make a long lower tail.
+pub const Z_FLOOR_DEG: [f64; 2] = [0.02, 0.05];
+
+/// The statistic the response table and the estimator work with:
+/// `(ln √(rms² + f₀²), ln √(peak² + f₁²))`.
+pub fn z(rms_deg: f64, peak_deg: f64) -> [f64; 2] {
+    [
+        0.5 * (rms_deg * rms_deg + Z_FLOOR_DEG[0] * Z_FLOOR_DEG[0]).ln(),
+        0.5 * (peak_deg * peak_deg + Z_FLOOR_DEG[1] * Z_FLOOR_DEG[1]).ln(),
+    ]
+}
+
 /// Power gain of the zero-phase filter (|H|⁴ of the single pass) integrated over 0..fs/2,
 /// as a fraction of fs/2: the share of white noise's variance that passes.
 pub fn enbw_fraction(bp: &Bandpass) -> f64 {

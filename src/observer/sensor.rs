@@ -18,6 +18,12 @@ pub struct SensorModel {
     pub rate_hz: f64,
     pub step_deg: f64,
     pub noise_deg: f64,
+    /// The driver's slow lane-keeping corrections at the steering wheel (deg RMS), white noise
+    /// through two first-order lags of `drift_tau_s / 2` each. Far below the 3 Hz band edge,
+    /// but it moves the angle across the sensor's steps, which changes what the steps do to a
+    /// small shimmy (a constant angle between two steps hides it).
+    pub drift_rms_deg: f64,
+    pub drift_tau_s: f64,
 }
 
 impl Default for SensorModel {
@@ -26,6 +32,8 @@ impl Default for SensorModel {
             rate_hz: 100.0,
             step_deg: 0.1,
             noise_deg: 0.01,
+            drift_rms_deg: 1.0,
+            drift_tau_s: 2.0,
         }
     }
 }
@@ -45,6 +53,30 @@ impl SensorModel {
         let dt_in = 1.0 / fs_in_hz;
         let period = 1.0 / self.rate_hz;
         let mut t = rng.random_range(0.0..period);
+        // Two-stage lag driven by unit white noise (stage 1 is an exact-discretised OU process
+        // of unit variance; two equal stages halve it, hence the √2).
+        let a = if self.drift_tau_s > 0.0 {
+            (-period / (0.5 * self.drift_tau_s)).exp()
+        } else {
+            0.0
+        };
+        let drive = (1.0 - a * a).sqrt();
+        let (mut x1, mut x2) = (0.0f64, 0.0f64);
+        let mut drift = |rng: &mut ChaCha8Rng| {
+            let w: f64 = StandardNormal.sample(rng);
+            let x1p = x1;
+            x1 = a * x1 + drive * w;
+            x2 = a * x2 + (1.0 - a) * x1p;
+            x2 * self.drift_rms_deg * std::f64::consts::SQRT_2
+        };
+        let warm = if a > 0.0 {
+            (10.0 / (1.0 - a)) as usize
+        } else {
+            0
+        };
+        for _ in 0..warm.min(100_000) {
+            drift(rng);
+        }
         let t_end = (x_rad.len().saturating_sub(1)) as f64 * dt_in;
         while t <= t_end {
             let pos = t / dt_in;
@@ -56,7 +88,7 @@ impl SensorModel {
                 x_rad[k]
             };
             let n: f64 = StandardNormal.sample(rng);
-            let deg = v.to_degrees() + offset + self.noise_deg * n;
+            let deg = v.to_degrees() + offset + self.noise_deg * n + drift(rng);
             let q = if self.step_deg > 0.0 {
                 (deg / self.step_deg).round() * self.step_deg
             } else {

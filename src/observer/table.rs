@@ -3,8 +3,8 @@
 //! sensor model, over many seeds with the nuisances drawn (unbalance phase and magnitude, road
 //! noise, ±10 % on stiffness and damping).
 //!
-//! Each cell keeps the mean, standard deviation and correlation of `z = (ln rms_deg,
-//! ln peak_deg)`; [`ResponseTable::predict`] interpolates them bilinearly in (speed, decel). The
+//! Each cell keeps the mean, standard deviation and correlation of z (floored logs of the
+//! band-passed RMS and peak, [`super::features::z`]); [`ResponseTable::predict`] interpolates them bilinearly in (speed, decel). The
 //! table also keeps a calibration of the steering-wheel amplitude: how the true (continuous,
 //! 1 kHz) band-passed peak relates to the measured noise-corrected RMS, used by the
 //! `shimmy_55kmh` alert.
@@ -186,10 +186,64 @@ impl ResponseTable {
         p
     }
 
+    /// Reduces the seed noise of the cell means: for each speed, the means are averaged over the
+    /// deceleration axis (its effect is small next to the seed spread, MODEL.md §13 varies speed
+    /// and clearance only) and then made non-decreasing in clearance by isotonic regression
+    /// (pool-adjacent-violators; the shimmy amplitude grows with clearance, MODEL.md §12–13).
+    /// Spreads and correlations are kept.
+    pub fn smooth(&mut self) {
+        let (nc, nv, nd) = (
+            self.clearance_mm.len(),
+            self.speed_kmh.len(),
+            self.decel_g.len(),
+        );
+        for k in 0..2 {
+            for iv in 0..nv {
+                let mut y: Vec<f64> = (0..nc)
+                    .map(|ic| {
+                        (0..nd).map(|id| self.cell(ic, iv, id).mean[k]).sum::<f64>() / nd as f64
+                    })
+                    .collect();
+                isotonic_in_place(&mut y);
+                for (ic, &m) in y.iter().enumerate() {
+                    for id in 0..nd {
+                        let i = self.idx(ic, iv, id);
+                        self.cells[i].mean[k] = m;
+                    }
+                }
+            }
+        }
+    }
+
     /// The steering-wheel amplitude (deg) the amplitude calibration gives for a measured excess
     /// RMS; linear interpolation, proportional extrapolation beyond the ends.
     pub fn amplitude_deg(&self, excess_rms_deg: f64) -> Option<f64> {
         amp_from_map(&self.amp_map, excess_rms_deg)
+    }
+}
+
+/// Least-squares non-decreasing fit of `y` (equal weights), in place: pool adjacent violators.
+pub fn isotonic_in_place(y: &mut [f64]) {
+    let mut blocks: Vec<(f64, usize)> = Vec::with_capacity(y.len());
+    for &v in y.iter() {
+        blocks.push((v, 1));
+        while blocks.len() > 1 {
+            let (b, nb) = blocks[blocks.len() - 1];
+            let (a, na) = blocks[blocks.len() - 2];
+            if a <= b {
+                break;
+            }
+            blocks.pop();
+            let last = blocks.len() - 1;
+            blocks[last] = ((a * na as f64 + b * nb as f64) / (na + nb) as f64, na + nb);
+        }
+    }
+    let mut i = 0;
+    for (v, n) in blocks {
+        for x in &mut y[i..i + n] {
+            *x = v;
+        }
+        i += n;
     }
 }
 
