@@ -8,7 +8,7 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use shimmy::source::log::LogReader;
 use shimmy::source::recorder::CandumpWriter;
 use shimmy::source::CanSource;
-use shimmy::wire::candump::parse_line;
+use shimmy::wire::candump::{parse_common_into, parse_line};
 use shimmy::wire::Frame;
 use std::hint::black_box;
 use std::io::Write;
@@ -142,6 +142,21 @@ fn count_frames(path: &Path) -> u64 {
     n
 }
 
+/// Like `count_frames`, through `read_frame` into one reused frame (no per-frame copy out).
+fn count_frames_in_place(path: &Path) -> u64 {
+    let mut r = LogReader::open(path).unwrap();
+    let mut f = Frame::empty(0);
+    let mut n = 0u64;
+    let mut x = 0u32;
+    while r.read_frame(&mut f).unwrap() {
+        n += 1;
+        x ^= f.id ^ f.data[0] as u32;
+    }
+    black_box(x);
+    assert_eq!(r.stats().malformed, 0);
+    n
+}
+
 /// CPU seconds used by this thread so far (utime + stime from /proc, 10 ms ticks), so the
 /// rates below do not depend on how loaded the machine is; `None` off Linux.
 fn thread_cpu_s() -> Option<f64> {
@@ -183,6 +198,9 @@ fn bench(c: &mut Criterion) {
     }
 
     cpu_rate("candump file", 5, || count_frames(&cd));
+    cpu_rate("candump file, read_frame in place", 5, || {
+        count_frames_in_place(&cd)
+    });
     cpu_rate("ASC file", 5, || count_frames(&asc));
     cpu_rate("BLF file", 5, || count_frames(&blf));
 
@@ -210,6 +228,13 @@ fn bench(c: &mut Criterion) {
         lines
             .iter()
             .filter(|l| parse_line(black_box(l)).is_ok())
+            .count() as u64
+    });
+    cpu_rate("candump parse_common_into in memory", 5, || {
+        let mut f = Frame::empty(0);
+        lines
+            .iter()
+            .filter(|l| parse_common_into(black_box(l), &mut f))
             .count() as u64
     });
     let mut g = c.benchmark_group("candump_parse_line");

@@ -14,12 +14,16 @@
 //!
 //! Units are SI inside; degrees, km/h, mm and bar appear only at the edges and names say so.
 
+pub mod alerts;
 pub mod analysis;
 pub mod cli;
+pub mod daemon;
 pub mod dbc;
 pub mod events;
+pub mod journal;
 pub mod model;
 pub mod observer;
+pub mod report;
 pub mod shared_data;
 pub mod signals;
 pub mod source;

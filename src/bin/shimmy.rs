@@ -19,6 +19,8 @@ enum Cmd {
     Estimate(shimmy::cli::estimate::Args),
     /// Build the clearance estimator's response table from the shimmy model.
     Calibrate(shimmy::cli::calibrate::Args),
+    /// Workshop inspection report (HTML or JSON) from shimmyd's journal, state, or CAN logs.
+    Report(shimmy::cli::report::Args),
     Simulate(shimmy::cli::simulate::Args),
     /// Rerun the source article's experiments on the model and regenerate docs/REPRODUCTION.md.
     Reproduce(shimmy::cli::reproduce::Args),
@@ -30,6 +32,7 @@ fn main() {
         Cmd::Decode(a) => shimmy::cli::decode::run(a),
         Cmd::Estimate(a) => shimmy::cli::estimate::run(a),
         Cmd::Calibrate(a) => shimmy::cli::calibrate::run(a),
+        Cmd::Report(a) => shimmy::cli::report::run(a),
         Cmd::Simulate(a) => shimmy::cli::simulate::run(a),
         Cmd::Reproduce(a) => shimmy::cli::reproduce::run(a),
     };

@@ -4,5 +4,6 @@
 pub mod calibrate;
 pub mod decode;
 pub mod estimate;
+pub mod report;
 pub mod reproduce;
 pub mod simulate;

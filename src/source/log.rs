@@ -91,11 +91,15 @@ pub struct LogReader {
     reported: usize,
     max_reports: usize,
     last_t: Option<i64>,
+    /// An empty frame with the last interface name: `next_frame` starts from it (keeps the
+    /// candump fast path's interface-name cache warm).
+    scratch: Frame,
 }
 
 /// What one step of a reader produced, owned (so the line buffer's borrow can end).
 enum Step {
-    Frame(Frame),
+    /// A frame, written into the caller's `out`.
+    Frame,
     Nothing,
     Dropped(u64),
     Skipped(u64, String),
@@ -164,6 +168,7 @@ impl LogReader {
             reported: 0,
             max_reports: DEFAULT_MAX_REPORTS,
             last_t: None,
+            scratch: Frame::empty(0),
         }
     }
 
@@ -198,7 +203,8 @@ impl LogReader {
         }
     }
 
-    fn step(&mut self) -> io::Result<Step> {
+    /// One line or record; a frame is written into `out`.
+    fn step(&mut self, out: &mut Frame) -> io::Result<Step> {
         match &mut self.kind {
             Kind::Candump(lines) => {
                 let line = match lines.next_line()? {
@@ -214,8 +220,16 @@ impl LogReader {
                     }
                     Line::Text { bytes, terminated } => (bytes, terminated),
                 };
-                Ok(match candump::parse_line(bytes) {
-                    Ok(Parsed::Frame(f)) => Step::Frame(f),
+                // Fast path for the common line shape, straight into `out`; every other line
+                // (and every error) goes through the full grammar.
+                if candump::parse_common_into(bytes, out) {
+                    return Ok(Step::Frame);
+                }
+                Ok(match candump::parse_line_full(bytes) {
+                    Ok(Parsed::Frame(f)) => {
+                        *out = f;
+                        Step::Frame
+                    }
                     Ok(Parsed::Comment) => Step::Nothing,
                     Ok(Parsed::DropCount(n)) => Step::Dropped(n),
                     Ok(Parsed::SkippedXl) => {
@@ -239,14 +253,20 @@ impl LogReader {
                     Line::Text { bytes, terminated } => (bytes, terminated),
                 };
                 Ok(match parser.parse_line(bytes) {
-                    Ok(AscLine::Frame(f)) => Step::Frame(f),
+                    Ok(AscLine::Frame(f)) => {
+                        *out = f;
+                        Step::Frame
+                    }
                     Ok(AscLine::Header) => Step::Nothing,
                     Ok(AscLine::OtherEvent) => Step::Skipped(0, String::new()),
                     Err(e) => Step::Malformed(lines.line_no(), half_written(e, terminated)),
                 })
             }
             Kind::Blf(blf) => Ok(match blf.next_event()? {
-                Some(Ok(BlfEvent::Frame(f))) => Step::Frame(f),
+                Some(Ok(BlfEvent::Frame(f))) => {
+                    *out = f;
+                    Step::Frame
+                }
                 Some(Ok(BlfEvent::Other)) => Step::Skipped(0, String::new()),
                 Some(Err(e)) => Step::Malformed(blf.object_index(), e.to_string()),
                 None => Step::End,
@@ -263,22 +283,42 @@ fn half_written(e: impl std::fmt::Display, terminated: bool) -> String {
     }
 }
 
+impl LogReader {
+    /// Count a delivered frame.
+    #[inline]
+    fn count(&mut self, kind: FrameKind, t_ns: i64) {
+        self.stats.frames += 1;
+        if kind == FrameKind::Error {
+            self.stats.error_frames += 1;
+        }
+        if let Some(last) = self.last_t {
+            if t_ns < last {
+                self.stats.backwards_timestamps += 1;
+            }
+        }
+        self.last_t = Some(t_ns);
+    }
+}
+
 impl CanSource for LogReader {
     fn next_frame(&mut self) -> io::Result<Option<Frame>> {
+        // `scratch` is an empty frame carrying the last interface name, so the candump fast
+        // path finds its name cache warm and a data array that is already zero.
+        let mut f = self.scratch;
+        if self.read_frame(&mut f)? {
+            self.scratch.iface = f.iface;
+            Ok(Some(f))
+        } else {
+            Ok(None)
+        }
+    }
+
+    fn read_frame(&mut self, out: &mut Frame) -> io::Result<bool> {
         loop {
-            match self.step()? {
-                Step::Frame(f) => {
-                    self.stats.frames += 1;
-                    if f.kind == FrameKind::Error {
-                        self.stats.error_frames += 1;
-                    }
-                    if let Some(last) = self.last_t {
-                        if f.t_ns < last {
-                            self.stats.backwards_timestamps += 1;
-                        }
-                    }
-                    self.last_t = Some(f.t_ns);
-                    return Ok(Some(f));
+            match self.step(out)? {
+                Step::Frame => {
+                    self.count(out.kind, out.t_ns);
+                    return Ok(true);
                 }
                 Step::Nothing => {}
                 Step::Dropped(n) => self.stats.dropped += n,
@@ -297,7 +337,7 @@ impl CanSource for LogReader {
                     };
                     self.report(at, unit, reason);
                 }
-                Step::End => return Ok(None),
+                Step::End => return Ok(false),
             }
         }
     }

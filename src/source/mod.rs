@@ -48,6 +48,21 @@ pub trait CanSource {
     /// [`CanSource::take_skips`]. `Err` is reserved for failures of the source itself (I/O).
     fn next_frame(&mut self) -> std::io::Result<Option<Frame>>;
 
+    /// Like [`CanSource::next_frame`], but writes the frame into `out` and returns `Ok(true)`,
+    /// or `Ok(false)` at the end (then `out` is unchanged or holds the last frame). Sources
+    /// that can fill a reused frame in place (e.g. [`log::LogReader`] on candump logs) override
+    /// this to avoid building and copying a frame per call; the default forwards to
+    /// `next_frame`.
+    fn read_frame(&mut self, out: &mut Frame) -> std::io::Result<bool> {
+        match self.next_frame()? {
+            Some(f) => {
+                *out = f;
+                Ok(true)
+            }
+            None => Ok(false),
+        }
+    }
+
     /// Counters so far.
     fn stats(&self) -> SourceStats;
 

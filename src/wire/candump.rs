@@ -182,6 +182,169 @@ impl<'a> Cur<'a> {
 
 /// Parse one line (its `\n` or `\r\n` may be included).
 pub fn parse_line(line: &[u8]) -> Result<Parsed, CandumpError> {
+    let mut f = Frame::empty(0);
+    if parse_common_into(line, &mut f) {
+        return Ok(Parsed::Frame(f));
+    }
+    parse_line_full(line)
+}
+
+/// The fast path for the shape nearly every real log line has,
+/// `(SSSSSSSSSS.FFFFFF) IFACE XXX#HEXHEX…` (classic data frame, 3- or 8-digit ID, 0–8 bytes,
+/// single spaces, optional `\r`/`\n` at the end), parsed in one pass with table lookups and
+/// integer timestamp arithmetic, into a caller-provided frame.
+///
+/// Returns `true` when `out` now holds exactly the frame [`parse_line`] would return for
+/// `line`. Returns `false`, with `out`'s contents unspecified, for anything else (other frame
+/// kinds, separators, direction suffixes, comments, and every malformed line): the caller
+/// then uses [`parse_line`], whose full grammar gives the precise error.
+///
+/// Reusing one `out` across lines is what makes this fast: the interface name is only
+/// validated when its bytes differ from the name already in `out`, and only the bytes that
+/// can change are written (the 64-byte data array is not re-zeroed: `out` must keep the
+/// [`Frame`] invariant that bytes past `len` are zero, as every constructor and parser does).
+#[inline]
+pub fn parse_common_into(line: &[u8], out: &mut Frame) -> bool {
+    let mut s = line;
+    if let [rest @ .., b'\n'] = s {
+        s = rest;
+    }
+    if let [rest @ .., b'\r'] = s {
+        s = rest;
+    }
+    let n = s.len();
+    // Shortest accepted line: "(0.000000) a 000#" = 17 bytes.
+    if n < 17 || s[0] != b'(' {
+        return false;
+    }
+    // Seconds: 1-12 digits (the bound keeps the loop short on garbage).
+    let mut i = 1;
+    let mut sec: i64 = 0;
+    loop {
+        let d = s[i].wrapping_sub(b'0');
+        if d > 9 {
+            break;
+        }
+        sec = sec * 10 + d as i64;
+        i += 1;
+        if i > 13 {
+            return false;
+        }
+    }
+    if i == 1 || s[i] != b'.' {
+        return false;
+    }
+    i += 1;
+    // Fraction: 6 or 9 digits, then ") ": at most 11 bytes from here, all indexed below.
+    if i + 11 > n {
+        return false;
+    }
+    let fstart = i;
+    let mut frac: i64 = 0;
+    loop {
+        let d = s[i].wrapping_sub(b'0');
+        if d > 9 || i - fstart == 9 {
+            break;
+        }
+        frac = frac * 10 + d as i64;
+        i += 1;
+    }
+    let frac_ns = match i - fstart {
+        6 => frac * 1000,
+        9 => frac,
+        _ => return false,
+    };
+    if s[i] != b')' || s[i + 1] != b' ' {
+        return false;
+    }
+    let Some(t_ns) = sec
+        .checked_mul(1_000_000_000)
+        .and_then(|ns| ns.checked_add(frac_ns))
+    else {
+        return false;
+    };
+    i += 2;
+    // Interface name: up to the next space.
+    let Some(sp) = memchr::memchr(b' ', &s[i..]) else {
+        return false;
+    };
+    if sp == 0 {
+        return false;
+    }
+    let name = &s[i..i + sp];
+    if name != out.iface.as_bytes() {
+        if name.contains(&b'\t') {
+            return false;
+        }
+        match IfaceName::from_bytes(name) {
+            Some(iface) => out.iface = iface,
+            None => return false,
+        }
+    }
+    i += sp + 1;
+    // Frame: ID '#' DATA up to the end of the line.
+    let fr = &s[i..];
+    let (id, extended, data) = if fr.len() >= 4 && fr[3] == b'#' {
+        let (d0, d1, d2) = (
+            HEX[fr[0] as usize],
+            HEX[fr[1] as usize],
+            HEX[fr[2] as usize],
+        );
+        let v = (d0 as u32) << 8 | (d1 as u32) << 4 | d2 as u32;
+        if (d0 | d1 | d2) & 0xF0 != 0 || v > 0x7FF {
+            return false;
+        }
+        (v, false, &fr[4..])
+    } else if fr.len() >= 9 && fr[8] == b'#' {
+        let mut v: u32 = 0;
+        let mut bad: u8 = 0;
+        for &b in &fr[..8] {
+            let d = HEX[b as usize];
+            bad |= d;
+            v = (v << 4) | (d & 0x0F) as u32;
+        }
+        // Error frames and flag bits take the full parser.
+        if bad & 0xF0 != 0 || v & !CAN_ERR_MASK != 0 {
+            return false;
+        }
+        (v, true, &fr[9..])
+    } else {
+        return false;
+    };
+    // Data: an even number of hex digits, at most 8 bytes, nothing else.
+    let len = data.len() / 2;
+    if data.len() % 2 != 0 || len > 8 {
+        return false;
+    }
+    let mut bytes = [0u8; 8];
+    let mut bad: u8 = 0;
+    for k in 0..len {
+        let hi = HEX[data[2 * k] as usize];
+        let lo = HEX[data[2 * k + 1] as usize];
+        bad |= hi | lo;
+        bytes[k] = (hi << 4) | (lo & 0x0F);
+    }
+    if bad & 0xF0 != 0 {
+        return false;
+    }
+    if out.len > 8 {
+        out.data[8..].fill(0);
+    }
+    out.data[..8].copy_from_slice(&bytes);
+    out.t_ns = t_ns;
+    out.id = id;
+    out.extended = extended;
+    out.kind = FrameKind::Data;
+    out.fd = false;
+    out.brs = false;
+    out.esi = false;
+    out.len = len as u8;
+    out.dlc = len as u8;
+    true
+}
+
+/// The full grammar (every frame kind, precise errors); [`parse_line`] without the fast path.
+pub fn parse_line_full(line: &[u8]) -> Result<Parsed, CandumpError> {
     let mut end = line.len();
     while end > 0 && matches!(line[end - 1], b'\n' | b'\r' | b' ' | b'\t') {
         end -= 1;
@@ -785,5 +948,78 @@ mod tests {
         let mut f = frame("(1.000000) can0 123#");
         f.t_ns = -1;
         assert!(write_frame(&mut Vec::new(), &f).is_err());
+    }
+
+    /// The fast path must accept the common shapes, and whatever it accepts must be exactly
+    /// what the full grammar returns, whatever frame `out` held before (a reused FD frame, a
+    /// different interface). Checked over every single-byte substitution, deletion and
+    /// duplication of a set of seed lines.
+    #[test]
+    fn fast_path_agrees_with_full_grammar() {
+        let seeds: [&[u8]; 8] = [
+            b"(46408.584930) can0 260#08FFFB0000001884",
+            b"(1700000000.123456789) vcan12 1FFFFFFF#0102\r\n",
+            b"(0.000001) can1 000#",
+            b"(999999999999.999999) c 7FF#AABBCCDDEEFF0011\n",
+            b"(12.000000) can0 00000123#de",
+            b"(12.000000) can0 123#de.ad",
+            b"(12.000000)  can0 123#11 R",
+            b"(12.000000) can0 123#1122334455667788_9",
+        ];
+        // Seed 3 overflows 64-bit ns; 5-7 use separators, extra spaces, a direction, a DLC.
+        let fast = [true, true, true, false, true, false, false, false];
+        for (seed, fast) in seeds.iter().zip(fast) {
+            assert_eq!(
+                parse_common_into(seed, &mut Frame::empty(0)),
+                fast,
+                "fast path acceptance of {:?}",
+                String::from_utf8_lossy(seed)
+            );
+        }
+        let mut fd = Frame::fd(5, 0x10, false, &[0x55; 64]).unwrap();
+        fd.set_iface("vcan0");
+        let priors = [Frame::empty(0), fd, {
+            let mut f = Frame::classic(1, 1, false, &[1; 8]).unwrap();
+            f.set_iface("can0");
+            f
+        }];
+        let mut variants: Vec<Vec<u8>> = Vec::new();
+        let subst = b"0189aAfFgG#._ \t\r\n()R-\xff\xc3";
+        for seed in seeds {
+            variants.push(seed.to_vec());
+            for i in 0..seed.len() {
+                for &b in subst {
+                    let mut v = seed.to_vec();
+                    v[i] = b;
+                    variants.push(v);
+                }
+                let mut v = seed.to_vec();
+                v.remove(i);
+                variants.push(v);
+                let mut v = seed.to_vec();
+                v.insert(i, seed[i]);
+                variants.push(v);
+            }
+        }
+        let mut accepted = 0;
+        for v in &variants {
+            for prior in &priors {
+                let mut out = *prior;
+                if parse_common_into(v, &mut out) {
+                    accepted += 1;
+                    assert_eq!(
+                        parse_line_full(v),
+                        Ok(Parsed::Frame(out)),
+                        "line {:?}",
+                        String::from_utf8_lossy(v)
+                    );
+                }
+                assert_eq!(parse_line(v), parse_line_full(v));
+            }
+        }
+        assert!(
+            accepted > 1000,
+            "fast path accepted only {accepted} variants"
+        );
     }
 }
