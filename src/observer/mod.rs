@@ -137,6 +137,8 @@ pub struct Observer {
     shimmy: ShimmyRule,
     events: Vec<EventOut>,
     events_dropped: u64,
+    /// The most recent event, kept even when `events` is full (streaming consumers).
+    last_event: Option<EventOut>,
     clearance_raised: Option<(f64, f64)>,
     shimmy_raised: Option<f64>,
 }
@@ -155,6 +157,7 @@ impl Observer {
             shimmy: ShimmyRule::default(),
             events: Vec::new(),
             events_dropped: 0,
+            last_event: None,
             clearance_raised: None,
             shimmy_raised: None,
             cfg,
@@ -249,11 +252,7 @@ impl Observer {
                 self.shimmy_raised = None;
             }
         }
-        if self.events.len() >= MAX_EVENTS_KEPT {
-            self.events_dropped += 1;
-            return;
-        }
-        self.events.push(EventOut {
+        let out = EventOut {
             t_start: rec.t_start_s,
             t_end: rec.t_end_s,
             v0_kmh: rec.v0_kmh,
@@ -268,11 +267,29 @@ impl Observer {
             quant_step_deg: rec.quality.quant_step_deg,
             missing_samples: rec.quality.missing_samples,
             invalid_updates: rec.quality.invalid_updates,
-        });
+        };
+        if self.events.len() >= MAX_EVENTS_KEPT {
+            self.events_dropped += 1;
+        } else {
+            self.events.push(out.clone());
+        }
+        self.last_event = Some(out);
     }
 
+    /// The events kept for the report (at most [`MAX_EVENTS_KEPT`]).
     pub fn events(&self) -> &[EventOut] {
         &self.events
+    }
+
+    /// Every event finished so far, kept in [`Self::events`] or not: a streaming consumer
+    /// compares this with its own count to see that a new event finished.
+    pub fn events_seen(&self) -> u64 {
+        self.events.len() as u64 + self.events_dropped
+    }
+
+    /// The most recently finished event, also when the kept list is full.
+    pub fn last_event(&self) -> Option<&EventOut> {
+        self.last_event.as_ref()
     }
 
     pub fn estimator(&self) -> Option<&Estimator> {
