@@ -123,3 +123,40 @@ impl EventStage for ObserverStage {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Brake applications of 0.8 s at 0.5 g at 72 km/h, one every 2 s, sampled at 10 Hz
+    /// (too slow for estimation: cheap events that are still detected and reported).
+    fn feed(stage: &mut ObserverStage, cycles: usize) -> usize {
+        let mut found = 0;
+        for k in 0..cycles * 20 {
+            let t = k as f64 * 0.1;
+            // Brake off first: the detector needs to see the onset.
+            let braking = (k % 20) >= 12;
+            let s = Sample {
+                t_ns: (t * 1e9) as i64,
+                steer_rad: Some(0.0),
+                speed_mps: Some(20.0),
+                accel_mps2: Some(if braking { -4.9 } else { 0.0 }),
+                brake: Some(braking),
+                steer_invalid: false,
+            };
+            found += stage.push(&s).is_some() as usize;
+        }
+        found + stage.finish().is_some() as usize
+    }
+
+    #[test]
+    fn events_past_the_observers_report_cap_still_reach_the_daemon() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let cfg = Config::load(&root.join("config/shimmyd.toml")).unwrap();
+        let mut stage = ObserverStage::new(&cfg, None).unwrap();
+        let cycles = crate::observer::MAX_EVENTS_KEPT + 5;
+        assert_eq!(feed(&mut stage, cycles), cycles);
+        assert_eq!(stage.obs.events().len(), crate::observer::MAX_EVENTS_KEPT);
+        assert!(stage.estimate().is_none(), "no table: no estimate");
+    }
+}
