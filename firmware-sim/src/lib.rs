@@ -13,6 +13,7 @@
 //! | [`bus`] | ECUs of the reference bus: sensors, rates, jitter, counters, checksums, faults |
 //! | [`sim`] | one run: steps the plant, polls the ECUs, yields time-ordered frames |
 //! | [`truth`] | the ground-truth sidecar (JSON) |
+//! | [`fleet`] | `firmware-sim fleet`: the clearance observer validated on a simulated fleet |
 //!
 //! Live output uses `shimmy::source::socketcan::LiveSink`.
 //!
@@ -20,6 +21,7 @@
 
 pub mod bus;
 pub mod drive;
+pub mod fleet;
 pub mod plant;
 pub mod scenario;
 pub mod sim;

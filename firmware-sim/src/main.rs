@@ -100,6 +100,15 @@ struct Cli {
 }
 
 fn main() {
+    // `firmware-sim fleet ...`: the observer's fleet validation (see `firmware-sim fleet --help`).
+    if std::env::args_os().nth(1).is_some_and(|a| a == "fleet") {
+        let args = firmware_sim::fleet::FleetArgs::parse_from(std::env::args_os().skip(1));
+        if let Err(e) = firmware_sim::fleet::run(args) {
+            eprintln!("firmware-sim fleet: error: {e:#}");
+            std::process::exit(1);
+        }
+        return;
+    }
     let cli = Cli::parse();
     if let Err(e) = run(cli) {
         eprintln!("firmware-sim: error: {e:#}");

@@ -15,6 +15,10 @@ struct Cli {
 enum Cmd {
     /// Decode CAN logs (candump -L, ASC, BLF) with a DBC file, like `cantools decode`.
     Decode(shimmy::cli::decode::Args),
+    /// Estimate steering-joint clearance from one vehicle's CAN logs (braking events, model table).
+    Estimate(shimmy::cli::estimate::Args),
+    /// Build the clearance estimator's response table from the shimmy model.
+    Calibrate(shimmy::cli::calibrate::Args),
     /// Workshop inspection report (HTML or JSON) from shimmyd's journal, state, or CAN logs.
     Report(shimmy::cli::report::Args),
     Simulate(shimmy::cli::simulate::Args),
@@ -26,6 +30,8 @@ fn main() {
     let cli = Cli::parse();
     let result: anyhow::Result<()> = match cli.cmd {
         Cmd::Decode(a) => shimmy::cli::decode::run(a),
+        Cmd::Estimate(a) => shimmy::cli::estimate::run(a),
+        Cmd::Calibrate(a) => shimmy::cli::calibrate::run(a),
         Cmd::Report(a) => shimmy::cli::report::run(a),
         Cmd::Simulate(a) => shimmy::cli::simulate::run(a),
         Cmd::Reproduce(a) => shimmy::cli::reproduce::run(a),

@@ -15,6 +15,7 @@
 
 pub mod config;
 pub mod counters;
+pub mod observer_stage;
 pub mod pipeline;
 pub mod run;
 pub mod stage;

@@ -5,7 +5,7 @@
 //! What it is: the contract the daemon, the alerts and the report are written against, plus
 //! [`NoObserver`] for builds/configurations without an observer (it detects nothing and
 //! estimates nothing — it never invents an estimate). The adapter for
-//! `shimmy::observer::Observer` implements this trait once the observer is on main.
+//! `shimmy::observer::Observer` is [`super::observer_stage::ObserverStage`].
 //!
 //! What it is not: a detector or an estimator.
 

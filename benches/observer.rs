@@ -1,0 +1,108 @@
+//! Cost of the clearance observer per braking event (issue 5: target under 20 ms on one core
+//! once the response table is built): the detector over one event's samples, the feature
+//! extraction (band-pass, peak, RMS, noise correction) and the posterior update over a table
+//! of the default `shimmy calibrate` grid size (14 clearances x 7 speeds x 3 decelerations).
+//!
+//! Run: cargo bench --bench observer
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use std::hint::black_box;
+
+use shimmy::events::Sample;
+use shimmy::observer::estimator::{Estimator, EstimatorConfig};
+use shimmy::observer::sensor::SensorModel;
+use shimmy::observer::table::{Cell, ResponseTable, FORMAT};
+use shimmy::observer::{Observer, ObserverConfig};
+
+fn table() -> ResponseTable {
+    let clearance_mm: Vec<f64> = (0..14)
+        .map(|i| 0.02 * (25f64).powf(i as f64 / 13.0))
+        .collect();
+    let speed_kmh = vec![25.0, 40.0, 55.0, 70.0, 85.0, 100.0, 120.0];
+    let decel_g = vec![0.3, 0.55, 0.8];
+    let mut cells = Vec::new();
+    for &c in &clearance_mm {
+        for _ in &speed_kmh {
+            for _ in &decel_g {
+                let r = (0.04f64.powi(2) + (0.25 * c).powi(2)).sqrt().ln();
+                cells.push(Cell {
+                    mean: [r, r + 0.8],
+                    std: [0.15, 0.15],
+                    corr: 0.7,
+                });
+            }
+        }
+    }
+    ResponseTable {
+        format: FORMAT.into(),
+        vehicle_hash: "bench".into(),
+        sensor: SensorModel::default(),
+        clearance_mm,
+        speed_kmh,
+        decel_g,
+        seeds: 1,
+        cells,
+        amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
+        provenance: String::new(),
+    }
+}
+
+/// One stop from 55 km/h at 0.5 g with 2 s before and after: 100 Hz steering (0.1 deg steps),
+/// 50 Hz speed.
+fn event_stream() -> Vec<Sample> {
+    let mut out = Vec::new();
+    let mut v: f64 = 55.0 / 3.6;
+    for k in 0..8000 {
+        let t = k as f64 * 1e-3;
+        let braking = t >= 2.0 && v > 0.0 || (t >= 2.0 && t < 6.5);
+        let a = if braking && v > 0.0 { 0.5 * 9.81 } else { 0.0 };
+        v = (v - a * 1e-3).max(0.0);
+        let mut s = Sample {
+            t_ns: (t * 1e9) as i64,
+            brake: Some(braking),
+            ..Default::default()
+        };
+        if k % 10 == 0 {
+            let deg = 0.15 * (2.0 * std::f64::consts::PI * 6.2 * t).sin() + 0.03;
+            s.steer_rad = Some(((deg / 0.1).round() * 0.1f64).to_radians());
+        }
+        if k % 20 == 5 {
+            s.speed_mps = Some(v);
+        }
+        if s.steer_rad.is_some() || s.speed_mps.is_some() {
+            out.push(s);
+        }
+    }
+    out
+}
+
+fn bench(c: &mut Criterion) {
+    let t = table();
+    let stream = event_stream();
+    c.bench_function(
+        "observer: one braking event end to end (detector+features+posterior)",
+        |b| {
+            b.iter(|| {
+                let mut obs = Observer::new(ObserverConfig::default(), Some(t.clone())).unwrap();
+                for s in &stream {
+                    obs.push(black_box(s));
+                }
+                obs.finish();
+                assert_eq!(obs.events().len(), 1);
+                black_box(obs.report().median_mm)
+            })
+        },
+    );
+    let mut est = Estimator::new(&t, EstimatorConfig::default()).unwrap();
+    let mut odo = 0.0;
+    c.bench_function("observer: posterior update only (14 clearances)", |b| {
+        b.iter(|| {
+            odo += 1000.0;
+            est.update(&t, black_box(0.05), black_box(0.15), 57.0, 0.45, odo);
+            black_box(est.quantile_mm(0.5))
+        })
+    });
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,237 @@
+//! Clearance estimation (issue 5 item 3): a posterior over the response table's clearance grid,
+//! updated by each used braking event and diffused between events for wear.
+//!
+//! * Prior: uniform in ln c over the grid (clearances span an order of magnitude).
+//! * Event update: the log-likelihood of the event's z ([`super::features::z`]: floored logs of
+//!   the band-passed RMS and peak) under each
+//!   clearance's predicted bivariate normal ([`ResponseTable::predict`] at the event's speed and
+//!   deceleration), with the predicted spread inflated by `std_inflation` (model mismatch) and a
+//!   small outlier floor so one odd event cannot veto a clearance.
+//! * Between events: a random walk in ln c with variance `wear_var_per_km · distance`, so the
+//!   estimate can follow slow growth (wear) and old events count less.
+//! * Summary: posterior median and 5 %/95 % quantiles (piecewise log-linear CDF over the grid),
+//!   `P(c > threshold)` for the clearance alert, and `detectable = q05 > detection_limit`: when
+//!   the posterior cannot exclude the detection limit the estimate is reported as "below q95".
+//!
+//! Memory: three vectors of grid length, allocated in [`Estimator::new`]; updates do not allocate.
+
+use serde::{Deserialize, Serialize};
+
+use super::table::ResponseTable;
+
+/// Estimator settings (`[estimator]` of config/observer.toml).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EstimatorConfig {
+    /// Multiplies the table's predicted standard deviations (model mismatch, unmodelled sensor).
+    pub std_inflation: f64,
+    /// Probability floor of an outlier event (relative to the peak density).
+    pub outlier_floor: f64,
+    /// Random-walk variance of ln c per km driven (wear).
+    pub wear_var_per_km: f64,
+    /// Clearances below this are reported as "below …" (mm).
+    pub detection_limit_mm: f64,
+    /// Which features enter the likelihood: "rms", "peak" or "both".
+    pub features: String,
+}
+
+impl Default for EstimatorConfig {
+    fn default() -> Self {
+        EstimatorConfig {
+            std_inflation: 1.0,
+            outlier_floor: 1e-3,
+            wear_var_per_km: 1e-4,
+            detection_limit_mm: 0.08,
+            features: "both".into(),
+        }
+    }
+}
+
+/// What the posterior says now.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Summary {
+    pub median_mm: f64,
+    pub q05_mm: f64,
+    pub q95_mm: f64,
+    /// `q05 > detection_limit`.
+    pub detectable: bool,
+    pub events_used: u32,
+}
+
+/// The running posterior.
+pub struct Estimator {
+    cfg: EstimatorConfig,
+    ln_c: Vec<f64>,
+    log_p: Vec<f64>,
+    scratch: Vec<f64>,
+    use_rms: bool,
+    use_peak: bool,
+    last_odometer_m: Option<f64>,
+    events_used: u32,
+}
+
+impl Estimator {
+    pub fn new(table: &ResponseTable, cfg: EstimatorConfig) -> anyhow::Result<Estimator> {
+        let (use_rms, use_peak) = match cfg.features.as_str() {
+            "rms" => (true, false),
+            "peak" => (false, true),
+            "both" => (true, true),
+            other => anyhow::bail!("estimator.features must be rms, peak or both, not `{other}`"),
+        };
+        let n = table.n_clearance();
+        let ln_c: Vec<f64> = table.clearance_mm.iter().map(|c| c.ln()).collect();
+        Ok(Estimator {
+            log_p: vec![-(n as f64).ln(); n],
+            scratch: vec![0.0; n],
+            ln_c,
+            use_rms,
+            use_peak,
+            last_odometer_m: None,
+            events_used: 0,
+            cfg,
+        })
+    }
+
+    pub fn config(&self) -> &EstimatorConfig {
+        &self.cfg
+    }
+
+    /// Log-likelihood of z under a prediction (bivariate or one marginal). Allocates nothing.
+    fn loglik(&self, z: [f64; 2], p: &super::table::Prediction) -> f64 {
+        let k = self.cfg.std_inflation;
+        let (s0, s1) = (p.std[0] * k, p.std[1] * k);
+        let d0 = (z[0] - p.mean[0]) / s0;
+        let d1 = (z[1] - p.mean[1]) / s1;
+        let (q, log_norm) = match (self.use_rms, self.use_peak) {
+            (true, true) => {
+                let r = p.corr.clamp(-0.95, 0.95);
+                let om = 1.0 - r * r;
+                (
+                    (d0 * d0 - 2.0 * r * d0 * d1 + d1 * d1) / om,
+                    -(s0 * s1 * om.sqrt()).ln(),
+                )
+            }
+            (true, false) => (d0 * d0, -s0.ln()),
+            _ => (d1 * d1, -s1.ln()),
+        };
+        let core = -0.5 * q;
+        // Outlier floor: log(exp(core) + floor).
+        let m = core.max(self.cfg.outlier_floor.ln());
+        log_norm + m + ((core - m).exp() + (self.cfg.outlier_floor.ln() - m).exp()).ln()
+    }
+
+    /// Random walk in ln c over `dist_km` (Gaussian kernel on the grid).
+    fn diffuse(&mut self, dist_km: f64) {
+        let var = self.cfg.wear_var_per_km * dist_km.max(0.0);
+        if var <= 0.0 {
+            return;
+        }
+        let n = self.ln_c.len();
+        let mx = self.log_p.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        for i in 0..n {
+            let mut s = 0.0;
+            let mut wsum = 0.0;
+            for j in 0..n {
+                let d = self.ln_c[i] - self.ln_c[j];
+                let w = (-0.5 * d * d / var).exp();
+                s += w * (self.log_p[j] - mx).exp();
+                wsum += w;
+            }
+            self.scratch[i] = (s / wsum.max(1e-300)).max(1e-300).ln() + mx;
+        }
+        std::mem::swap(&mut self.log_p, &mut self.scratch);
+        self.normalise();
+    }
+
+    fn normalise(&mut self) {
+        let mx = self.log_p.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let s: f64 = self.log_p.iter().map(|l| (l - mx).exp()).sum();
+        let ln_s = s.ln() + mx;
+        for l in &mut self.log_p {
+            *l -= ln_s;
+        }
+    }
+
+    /// Adds one used event: its features, speed, deceleration and odometer (m).
+    pub fn update(
+        &mut self,
+        table: &ResponseTable,
+        rms_deg: f64,
+        peak_deg: f64,
+        v0_kmh: f64,
+        decel_g: f64,
+        odometer_m: f64,
+    ) {
+        if let Some(prev) = self.last_odometer_m {
+            self.diffuse((odometer_m - prev) / 1000.0);
+        }
+        self.last_odometer_m = Some(odometer_m);
+        let z = super::features::z(rms_deg, peak_deg);
+        for ic in 0..self.ln_c.len() {
+            let p = table.predict(ic, v0_kmh, decel_g);
+            self.log_p[ic] += self.loglik(z, &p);
+        }
+        self.normalise();
+        self.events_used += 1;
+    }
+
+    /// Posterior probabilities on the grid.
+    pub fn probabilities(&self) -> impl Iterator<Item = f64> + '_ {
+        self.log_p.iter().map(|l| l.exp())
+    }
+
+    /// Grid cell edges in ln c: midpoints, with half-steps beyond the ends.
+    fn edge(&self, k: usize) -> f64 {
+        let n = self.ln_c.len();
+        if k == 0 {
+            self.ln_c[0] - 0.5 * (self.ln_c[1] - self.ln_c[0])
+        } else if k == n {
+            self.ln_c[n - 1] + 0.5 * (self.ln_c[n - 1] - self.ln_c[n - 2])
+        } else {
+            0.5 * (self.ln_c[k - 1] + self.ln_c[k])
+        }
+    }
+
+    /// The `q`-quantile (mm), mass spread uniformly in ln c over each grid cell.
+    pub fn quantile_mm(&self, q: f64) -> f64 {
+        let mut acc = 0.0;
+        let n = self.ln_c.len();
+        for k in 0..n {
+            let p = self.log_p[k].exp();
+            if acc + p >= q && p > 0.0 {
+                let f = ((q - acc) / p).clamp(0.0, 1.0);
+                let (a, b) = (self.edge(k), self.edge(k + 1));
+                return (a + f * (b - a)).exp();
+            }
+            acc += p;
+        }
+        self.edge(n).exp()
+    }
+
+    /// Posterior probability that c exceeds `c_mm`.
+    pub fn prob_above(&self, c_mm: f64) -> f64 {
+        let x = c_mm.ln();
+        let mut s = 0.0;
+        for k in 0..self.ln_c.len() {
+            let (a, b) = (self.edge(k), self.edge(k + 1));
+            let frac = ((b - x) / (b - a)).clamp(0.0, 1.0);
+            s += self.log_p[k].exp() * frac;
+        }
+        s.clamp(0.0, 1.0)
+    }
+
+    pub fn summary(&self) -> Summary {
+        let q05 = self.quantile_mm(0.05);
+        Summary {
+            median_mm: self.quantile_mm(0.5),
+            q05_mm: q05,
+            q95_mm: self.quantile_mm(0.95),
+            detectable: q05 > self.cfg.detection_limit_mm,
+            events_used: self.events_used,
+        }
+    }
+
+    pub fn events_used(&self) -> u32 {
+        self.events_used
+    }
+}

@@ -1,0 +1,191 @@
+//! Per-event steering-wheel features (issue 5 item 2), computed by one function on measured
+//! samples and on the model's output passed through [`super::sensor::SensorModel`], so the
+//! response table and the measurements are comparable by construction.
+//!
+//! Features, all over the braking window of MODEL.md §11 (brake onset to stop/release + 0.3 s),
+//! on the 4th-order 3–25 Hz zero-phase Butterworth band-passed steering-wheel angle:
+//! * `peak_deg`: max |band-passed δ_sw| (MODEL.md §11's "steering-wheel amplitude", raw: on a
+//!   signal in 0.1° steps it reads high);
+//! * `rms_deg`: RMS of the band-passed signal;
+//! * `noise_rms_deg`: the RMS the sensor alone (quantisation with a random offset, white noise)
+//!   puts into the band: `sqrt((q²/12 + σ²) · ENBW/(fs/2))`, ENBW the equivalent noise bandwidth of
+//!   the zero-phase filter;
+//! * `excess_rms_deg`: `sqrt(max(rms² − noise_rms², 0))`, the part of the RMS the wheel's motion
+//!   explains. The estimator and the `shimmy_55kmh` amplitude estimate build on it.
+//!
+//! Samples are first put on a uniform grid at the median rate (sample-and-hold over gaps; the
+//! event's quality record counts the gaps). Allocation: the extractor owns its buffers; it
+//! allocates only when an event is longer than any before (bounded by the detector's ring), and
+//! the band-pass allocates once per event, never per frame.
+
+use crate::analysis::filter::Bandpass;
+use crate::analysis::AnalysisError;
+use serde::{Deserialize, Serialize};
+
+/// MODEL.md §11 band and order.
+pub const BAND_HZ: (f64, f64) = (3.0, 25.0);
+pub const BAND_ORDER: usize = 4;
+
+/// Features of one event.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Features {
+    pub peak_deg: f64,
+    pub rms_deg: f64,
+    pub noise_rms_deg: f64,
+    pub excess_rms_deg: f64,
+    /// Samples in the window after resampling.
+    pub n: u32,
+    pub fs_hz: f64,
+}
+
+/// What the sensor is assumed to add (used for the noise correction).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SensorNoise {
+    /// Quantisation step (deg); 0 takes the step measured on the event.
+    pub quant_step_deg: f64,
+    /// White noise before quantisation (deg RMS).
+    pub noise_deg: f64,
+}
+
+impl Default for SensorNoise {
+    fn default() -> Self {
+        SensorNoise {
+            quant_step_deg: 0.0,
+            noise_deg: 0.01,
+        }
+    }
+}
+
+/// Reusable feature extractor (keeps the filter design and buffers between events).
+pub struct Extractor {
+    filt: Option<(f64, Bandpass, f64)>,
+    grid: Vec<f64>,
+}
+
+impl Default for Extractor {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Extractor {
+    pub fn new() -> Extractor {
+        Extractor {
+            filt: None,
+            grid: Vec::with_capacity(4096),
+        }
+    }
+
+    fn filter(&mut self, fs_hz: f64) -> Result<(&Bandpass, f64), AnalysisError> {
+        let stale = self
+            .filt
+            .as_ref()
+            .is_none_or(|(f, _, _)| (f - fs_hz).abs() > 1e-9);
+        if stale {
+            let bp = Bandpass::new(fs_hz, BAND_HZ.0, BAND_HZ.1, BAND_ORDER)?;
+            let enbw = enbw_fraction(&bp);
+            self.filt = Some((fs_hz, bp, enbw));
+        }
+        let (_, bp, e) = self.filt.as_ref().expect("set above");
+        Ok((bp, *e))
+    }
+
+    /// Features of `samples` (`(t_ns, angle_rad)`, increasing time) over the window
+    /// `[t0_ns, t1_ns]`; samples before `t0_ns` are pre-roll for the filter. `quant_step_deg`
+    /// is the measured step when `noise.quant_step_deg` is 0.
+    pub fn extract(
+        &mut self,
+        samples: &[(i64, f64)],
+        t0_ns: i64,
+        t1_ns: i64,
+        noise: SensorNoise,
+        quant_step_deg: f64,
+    ) -> Result<Features, AnalysisError> {
+        if samples.len() < 8 {
+            return Err(AnalysisError::TooShort(format!(
+                "{} steering samples, need 8",
+                samples.len()
+            )));
+        }
+        // Median interval → nominal rate.
+        let mut dts: heapless::Vec<i64, 64> = heapless::Vec::new();
+        for w in samples.windows(2).take(64) {
+            let _ = dts.push(w[1].0 - w[0].0);
+        }
+        dts.sort_unstable();
+        let dt_ns = dts[dts.len() / 2].max(1);
+        let fs_hz = (1e9 / dt_ns as f64 * 10.0).round() / 10.0;
+        // Uniform grid, sample-and-hold.
+        let t_first = samples[0].0;
+        let t_last = samples[samples.len() - 1].0;
+        let n = ((t_last - t_first) / dt_ns + 1) as usize;
+        self.grid.clear();
+        let mut j = 0;
+        for k in 0..n {
+            let t = t_first + k as i64 * dt_ns;
+            while j + 1 < samples.len() && samples[j + 1].0 <= t + dt_ns / 2 {
+                j += 1;
+            }
+            self.grid.push(samples[j].1.to_degrees());
+        }
+        let i0 = (((t0_ns - t_first) as f64 / dt_ns as f64).ceil().max(0.0)) as usize;
+        let i1 =
+            ((((t1_ns - t_first) as f64 / dt_ns as f64).floor() as i64 + 1).max(0) as usize).min(n);
+        if i1 <= i0 + 4 {
+            return Err(AnalysisError::TooShort(format!(
+                "{} samples in the window, need 5",
+                i1.saturating_sub(i0)
+            )));
+        }
+        let grid = std::mem::take(&mut self.grid);
+        let (bp, enbw) = self.filter(fs_hz)?;
+        let y = bp.filtfilt(&grid);
+        self.grid = grid;
+        let w = &y[i0..i1];
+        let peak = crate::analysis::peak_abs(w);
+        let rms = crate::analysis::rms(w);
+        let q = if noise.quant_step_deg > 0.0 {
+            noise.quant_step_deg
+        } else {
+            quant_step_deg
+        };
+        let noise_var = (q * q / 12.0 + noise.noise_deg * noise.noise_deg) * enbw;
+        let excess = (rms * rms - noise_var).max(0.0).sqrt();
+        Ok(Features {
+            peak_deg: peak,
+            rms_deg: rms,
+            noise_rms_deg: noise_var.sqrt(),
+            excess_rms_deg: excess,
+            n: (i1 - i0) as u32,
+            fs_hz,
+        })
+    }
+}
+
+/// Floors (deg) added in quadrature before taking logs in [`z`]: about the sensor's own
+/// contribution, so events whose quantised signal barely moves do not make a long lower tail.
+pub const Z_FLOOR_DEG: [f64; 2] = [0.02, 0.05];
+
+/// The statistic the response table and the estimator work with:
+/// `(ln √(rms² + f₀²), ln √(peak² + f₁²))`.
+pub fn z(rms_deg: f64, peak_deg: f64) -> [f64; 2] {
+    [
+        0.5 * (rms_deg * rms_deg + Z_FLOOR_DEG[0] * Z_FLOOR_DEG[0]).ln(),
+        0.5 * (peak_deg * peak_deg + Z_FLOOR_DEG[1] * Z_FLOOR_DEG[1]).ln(),
+    ]
+}
+
+/// Power gain of the zero-phase filter (|H|⁴ of the single pass) integrated over 0..fs/2,
+/// as a fraction of fs/2: the share of white noise's variance that passes.
+pub fn enbw_fraction(bp: &Bandpass) -> f64 {
+    let nyq = bp.fs_hz() / 2.0;
+    let m = 4000;
+    let mut s = 0.0;
+    for k in 0..m {
+        let f = (k as f64 + 0.5) / m as f64 * nyq;
+        let h = bp.response(f).norm_sqr();
+        s += h * h;
+    }
+    s / m as f64
+}

@@ -1,0 +1,381 @@
+//! The clearance observer (issue 5): from braking events in the mapped signal stream to a
+//! clearance estimate with a credible interval and two alerts.
+//!
+//! | module | job |
+//! |---|---|
+//! | [`features`] | per-event steering-wheel features (MODEL.md §11 band-pass peak, RMS, noise correction) |
+//! | [`sensor`] | the steering angle sensor model applied to the model's output (MODEL.md §8) |
+//! | [`table`] | the response table: predicted feature distributions over clearance × speed × decel |
+//! | [`estimator`] | the posterior over clearance, accumulated across events with wear diffusion |
+//! | [`alerts`] | the `clearance` and `shimmy_55kmh` rules |
+//!
+//! [`Observer`] wires them to [`crate::events::Detector`]: feed it [`Sample`]s, read a
+//! [`Report`]. What it is not: CAN decoding (that is [`crate::signals`]) or the model.
+
+pub mod alerts;
+pub mod estimator;
+pub mod features;
+pub mod sensor;
+pub mod simulate;
+pub mod table;
+
+use std::path::Path;
+
+use anyhow::Context;
+use serde::{Deserialize, Serialize};
+
+use crate::events::{Detector, EventConfig, Sample, Unused};
+use alerts::{AlertConfig, ShimmyRule};
+use estimator::{Estimator, EstimatorConfig};
+use features::{Extractor, Features, SensorNoise};
+use table::ResponseTable;
+
+/// config/observer.toml.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ObserverConfig {
+    pub events: EventConfig,
+    pub features: FeatureConfig,
+    pub estimator: EstimatorConfig,
+    pub alerts: AlertConfig,
+}
+
+/// `[features]`: the sensor noise assumed by the noise correction, and the crest factor used to
+/// turn the noise-corrected RMS into an amplitude when no response table calibrates it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FeatureConfig {
+    pub sensor: SensorNoise,
+    pub crest_factor: f64,
+}
+
+impl Default for FeatureConfig {
+    fn default() -> Self {
+        FeatureConfig {
+            sensor: SensorNoise::default(),
+            crest_factor: 2.2,
+        }
+    }
+}
+
+impl ObserverConfig {
+    pub fn from_toml_str(text: &str) -> anyhow::Result<ObserverConfig> {
+        Ok(toml::from_str(text)?)
+    }
+
+    pub fn load(path: &Path) -> anyhow::Result<ObserverConfig> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read {}", path.display()))?;
+        Self::from_toml_str(&text).with_context(|| format!("in {}", path.display()))
+    }
+}
+
+/// One event in the report (issue 5 item 4 field names, plus extras).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct EventOut {
+    pub t_start: f64,
+    pub t_end: f64,
+    pub v0_kmh: f64,
+    pub decel_g: f64,
+    /// MODEL.md §11 raw peak of the band-passed steering-wheel angle (deg); null when the event
+    /// had too few samples.
+    pub peak_sw_bp_deg: Option<f64>,
+    pub used: bool,
+    pub unused_reason: Option<Unused>,
+    pub rms_sw_bp_deg: Option<f64>,
+    /// Estimated true steering-wheel amplitude (deg), noise- and quantisation-corrected.
+    pub sw_amplitude_deg: Option<f64>,
+    pub duration_s: f64,
+    pub sample_hz: f64,
+    pub quant_step_deg: f64,
+    pub missing_samples: u32,
+    pub invalid_updates: u32,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Alert {
+    pub kind: &'static str,
+    /// Log time at which the alert's condition first held (s).
+    pub t_raised: f64,
+    pub evidence: serde_json::Value,
+}
+
+/// The whole answer of `shimmy estimate`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Report {
+    /// Posterior median (mm); null when not detectable.
+    pub clearance_mm: Option<f64>,
+    /// 90 % credible interval [5 %, 95 %] (mm); null without a table or without used events.
+    pub interval_mm: Option<[f64; 2]>,
+    pub detectable: bool,
+    /// When not detectable: the clearance is below this (mm), the posterior's 95 % quantile.
+    pub below_mm: Option<f64>,
+    /// Posterior median (mm) whether or not detectable (for validation; null without estimate).
+    pub median_mm: Option<f64>,
+    /// Human-readable verdict.
+    pub verdict: String,
+    pub events: Vec<EventOut>,
+    pub alerts: Vec<Alert>,
+    pub events_used: u32,
+    /// Brake applications ignored as too light / too slow to record.
+    pub brake_applications_ignored: u64,
+    /// Events not kept in `events` because the report's list was full.
+    pub events_dropped: u64,
+    pub p_clearance_above_threshold: Option<f64>,
+}
+
+/// Most events kept in the report (memory bound).
+pub const MAX_EVENTS_KEPT: usize = 10_000;
+
+/// Detector + features + estimator + alerts.
+pub struct Observer {
+    cfg: ObserverConfig,
+    detector: Detector,
+    extractor: Extractor,
+    table: Option<ResponseTable>,
+    estimator: Option<Estimator>,
+    shimmy: ShimmyRule,
+    events: Vec<EventOut>,
+    events_dropped: u64,
+    /// The most recent event, kept even when `events` is full (streaming consumers).
+    last_event: Option<EventOut>,
+    clearance_raised: Option<(f64, f64)>,
+    shimmy_raised: Option<f64>,
+}
+
+impl Observer {
+    pub fn new(cfg: ObserverConfig, table: Option<ResponseTable>) -> anyhow::Result<Observer> {
+        let estimator = match &table {
+            Some(t) => Some(Estimator::new(t, cfg.estimator.clone())?),
+            None => None,
+        };
+        Ok(Observer {
+            detector: Detector::new(cfg.events.clone()),
+            extractor: Extractor::new(),
+            table,
+            estimator,
+            shimmy: ShimmyRule::default(),
+            events: Vec::new(),
+            events_dropped: 0,
+            last_event: None,
+            clearance_raised: None,
+            shimmy_raised: None,
+            cfg,
+        })
+    }
+
+    pub fn push(&mut self, s: &Sample) {
+        let Some(fin) = self.detector.push(s) else {
+            return;
+        };
+        let rec = fin.record;
+        let t0 = (rec.t_start_s * 1e9).round() as i64;
+        let t1 = ((rec.t_end_s + self.cfg.events.tail_s) * 1e9).round() as i64;
+        let feats = self
+            .extractor
+            .extract(
+                fin.samples,
+                t0,
+                t1,
+                self.cfg.features.sensor,
+                rec.quality.quant_step_deg,
+            )
+            .ok();
+        self.on_event(rec, feats);
+    }
+
+    /// Closes an event still open at the end of the input.
+    pub fn finish(&mut self) {
+        let Some(fin) = self.detector.flush() else {
+            return;
+        };
+        let rec = fin.record;
+        let t0 = (rec.t_start_s * 1e9).round() as i64;
+        let t1 = ((rec.t_end_s + self.cfg.events.tail_s) * 1e9).round() as i64;
+        let feats = self
+            .extractor
+            .extract(
+                fin.samples,
+                t0,
+                t1,
+                self.cfg.features.sensor,
+                rec.quality.quant_step_deg,
+            )
+            .ok();
+        self.on_event(rec, feats);
+    }
+
+    /// The amplitude estimate for features `f` (deg).
+    pub fn amplitude_deg(&self, f: &Features) -> f64 {
+        match self
+            .table
+            .as_ref()
+            .and_then(|t| t.amplitude_deg(f.excess_rms_deg))
+        {
+            Some(a) => a,
+            None => self.cfg.features.crest_factor * f.excess_rms_deg,
+        }
+    }
+
+    fn on_event(&mut self, rec: crate::events::EventRecord, feats: Option<Features>) {
+        let mut used = rec.used && feats.is_some();
+        let mut reason = rec.unused_reason;
+        if rec.used && feats.is_none() {
+            reason = Some(Unused::MissingData);
+            used = false;
+        }
+        let amp = feats.as_ref().map(|f| self.amplitude_deg(f));
+        if let (true, Some(f), Some(a)) = (used, feats.as_ref(), amp) {
+            if let (Some(est), Some(t)) = (self.estimator.as_mut(), self.table.as_ref()) {
+                est.update(
+                    t,
+                    f.rms_deg,
+                    f.peak_deg,
+                    rec.v0_kmh,
+                    rec.decel_g,
+                    rec.odometer_m,
+                );
+                let p = est.prob_above(self.cfg.alerts.clearance_mm);
+                if p >= self.cfg.alerts.clearance_probability {
+                    if self.clearance_raised.is_none() {
+                        self.clearance_raised = Some((rec.t_end_s, p));
+                    }
+                } else {
+                    self.clearance_raised = None;
+                }
+            }
+            self.shimmy
+                .offer(&self.cfg.alerts, rec.t_start_s, rec.v0_kmh, a);
+            if self.shimmy.active(&self.cfg.alerts) {
+                self.shimmy_raised.get_or_insert(rec.t_end_s);
+            } else {
+                self.shimmy_raised = None;
+            }
+        }
+        let out = EventOut {
+            t_start: rec.t_start_s,
+            t_end: rec.t_end_s,
+            v0_kmh: rec.v0_kmh,
+            decel_g: rec.decel_g,
+            peak_sw_bp_deg: feats.map(|f| f.peak_deg),
+            used,
+            unused_reason: reason,
+            rms_sw_bp_deg: feats.map(|f| f.rms_deg),
+            sw_amplitude_deg: amp,
+            duration_s: rec.duration_s(),
+            sample_hz: rec.quality.sample_hz,
+            quant_step_deg: rec.quality.quant_step_deg,
+            missing_samples: rec.quality.missing_samples,
+            invalid_updates: rec.quality.invalid_updates,
+        };
+        if self.events.len() >= MAX_EVENTS_KEPT {
+            self.events_dropped += 1;
+        } else {
+            self.events.push(out.clone());
+        }
+        self.last_event = Some(out);
+    }
+
+    /// The events kept for the report (at most [`MAX_EVENTS_KEPT`]).
+    pub fn events(&self) -> &[EventOut] {
+        &self.events
+    }
+
+    /// Every event finished so far, kept in [`Self::events`] or not: a streaming consumer
+    /// compares this with its own count to see that a new event finished.
+    pub fn events_seen(&self) -> u64 {
+        self.events.len() as u64 + self.events_dropped
+    }
+
+    /// The most recently finished event, also when the kept list is full.
+    pub fn last_event(&self) -> Option<&EventOut> {
+        self.last_event.as_ref()
+    }
+
+    pub fn estimator(&self) -> Option<&Estimator> {
+        self.estimator.as_ref()
+    }
+
+    pub fn report(&self) -> Report {
+        let a = &self.cfg.alerts;
+        let mut alerts = Vec::new();
+        let summary = self
+            .estimator
+            .as_ref()
+            .filter(|e| e.events_used() > 0)
+            .map(|e| (e.summary(), e.prob_above(a.clearance_mm)));
+        if let (Some((t, _)), Some((_, p))) = (self.clearance_raised, summary) {
+            alerts.push(Alert {
+                kind: "clearance",
+                t_raised: t,
+                evidence: serde_json::json!({
+                    "p_above": p,
+                    "threshold_mm": a.clearance_mm,
+                    "probability_required": a.clearance_probability,
+                    "events_used": summary.map(|s| s.0.events_used),
+                }),
+            });
+        }
+        if let Some(t) = self.shimmy_raised {
+            let recent: Vec<_> = self
+                .shimmy
+                .recent()
+                .map(|(t, amp)| serde_json::json!({"t_start": t, "sw_amplitude_deg": amp}))
+                .collect();
+            alerts.push(Alert {
+                kind: "shimmy_55kmh",
+                t_raised: t,
+                evidence: serde_json::json!({
+                    "threshold_deg": a.shimmy_amplitude_deg,
+                    "hits": self.shimmy.hits(a),
+                    "confirm": a.shimmy_confirm,
+                    "recent_events": recent,
+                }),
+            });
+        }
+        let (clearance_mm, interval_mm, detectable, below_mm, verdict) = match summary {
+            None => (
+                None,
+                None,
+                false,
+                None,
+                if self.table.is_none() {
+                    "no response table: clearance not estimated".to_string()
+                } else {
+                    "no usable braking events: clearance not estimated".to_string()
+                },
+            ),
+            Some((s, _)) if s.detectable => (
+                Some(s.median_mm),
+                Some([s.q05_mm, s.q95_mm]),
+                true,
+                None,
+                format!(
+                    "clearance {:.3} mm (90 % interval {:.3}-{:.3} mm, {} events)",
+                    s.median_mm, s.q05_mm, s.q95_mm, s.events_used
+                ),
+            ),
+            Some((s, _)) => (
+                None,
+                Some([s.q05_mm, s.q95_mm]),
+                false,
+                Some(s.q95_mm),
+                format!("below {:.2} mm ({} events)", s.q95_mm, s.events_used),
+            ),
+        };
+        Report {
+            median_mm: summary.map(|s| s.0.median_mm),
+            clearance_mm,
+            interval_mm,
+            detectable,
+            below_mm,
+            verdict,
+            events: self.events.clone(),
+            alerts,
+            events_used: self.events.iter().filter(|e| e.used).count() as u32,
+            brake_applications_ignored: self.detector.ignored,
+            events_dropped: self.events_dropped,
+            p_clearance_above_threshold: summary.map(|s| s.1),
+        }
+    }
+}

@@ -1,0 +1,101 @@
+//! The steering angle sensor as the observer assumes it (MODEL.md §8): the continuous
+//! steering-wheel angle δ_sw is sampled at a fixed rate, white noise is added, and the result is
+//! quantised to the sensor's step after a random zero-point offset of under one step.
+//!
+//! Used to pass the model's output through the same sensor before computing features, so that
+//! the response table ([`super::table`]) describes what a real sensor would report. What it is
+//! not: a CAN encoder (firmware-sim does that) or a fit of any particular sensor.
+
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+use serde::{Deserialize, Serialize};
+
+/// Sensor parameters (`[sensor]` of config/observer.toml).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SensorModel {
+    pub rate_hz: f64,
+    pub step_deg: f64,
+    pub noise_deg: f64,
+    /// The driver's slow lane-keeping corrections at the steering wheel (deg RMS), white noise
+    /// through two first-order lags of `drift_tau_s / 2` each. Far below the 3 Hz band edge,
+    /// but it moves the angle across the sensor's steps, which changes what the steps do to a
+    /// small shimmy (a constant angle between two steps hides it).
+    pub drift_rms_deg: f64,
+    pub drift_tau_s: f64,
+}
+
+impl Default for SensorModel {
+    fn default() -> Self {
+        SensorModel {
+            rate_hz: 100.0,
+            step_deg: 0.1,
+            noise_deg: 0.01,
+            drift_rms_deg: 1.0,
+            drift_tau_s: 2.0,
+        }
+    }
+}
+
+impl SensorModel {
+    /// Sample `x_rad` (uniform at `fs_in_hz`, starting at t = 0) into `out` as `(t_ns, rad)`.
+    /// The sampling phase and the zero offset are drawn from `rng`.
+    pub fn sample_into(
+        &self,
+        x_rad: &[f64],
+        fs_in_hz: f64,
+        rng: &mut ChaCha8Rng,
+        out: &mut Vec<(i64, f64)>,
+    ) {
+        out.clear();
+        let offset = rng.random_range(-0.5..0.5) * self.step_deg;
+        let dt_in = 1.0 / fs_in_hz;
+        let period = 1.0 / self.rate_hz;
+        let mut t = rng.random_range(0.0..period);
+        // Two-stage lag driven by unit white noise (stage 1 is an exact-discretised OU process
+        // of unit variance; two equal stages halve it, hence the √2).
+        let a = if self.drift_tau_s > 0.0 {
+            (-period / (0.5 * self.drift_tau_s)).exp()
+        } else {
+            0.0
+        };
+        let drive = (1.0 - a * a).sqrt();
+        let (mut x1, mut x2) = (0.0f64, 0.0f64);
+        let mut drift = |rng: &mut ChaCha8Rng| {
+            let w: f64 = StandardNormal.sample(rng);
+            let x1p = x1;
+            x1 = a * x1 + drive * w;
+            x2 = a * x2 + (1.0 - a) * x1p;
+            x2 * self.drift_rms_deg * std::f64::consts::SQRT_2
+        };
+        let warm = if a > 0.0 {
+            (10.0 / (1.0 - a)) as usize
+        } else {
+            0
+        };
+        for _ in 0..warm.min(100_000) {
+            drift(rng);
+        }
+        let t_end = (x_rad.len().saturating_sub(1)) as f64 * dt_in;
+        while t <= t_end {
+            let pos = t / dt_in;
+            let k = pos.floor() as usize;
+            let fr = pos - k as f64;
+            let v = if k + 1 < x_rad.len() {
+                x_rad[k] * (1.0 - fr) + x_rad[k + 1] * fr
+            } else {
+                x_rad[k]
+            };
+            let n: f64 = StandardNormal.sample(rng);
+            let deg = v.to_degrees() + offset + self.noise_deg * n + drift(rng);
+            let q = if self.step_deg > 0.0 {
+                (deg / self.step_deg).round() * self.step_deg
+            } else {
+                deg
+            };
+            out.push(((t * 1e9).round() as i64, q.to_radians()));
+            t += period;
+        }
+    }
+}

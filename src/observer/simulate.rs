@@ -1,0 +1,204 @@
+//! One simulated braking event seen through the observer (issue 5 items 2–3): the shimmy model
+//! (MODEL.md §6 event) is run, its steering-wheel angle δ_sw (§8) goes through the observer's
+//! sensor model ([`super::sensor`]) and its speed through a 50 Hz speed signal, and the result
+//! is fed to the same [`Detector`] and [`Extractor`] that process a real log. So the features
+//! of a simulated event and of a measured one are computed by the same code.
+//!
+//! Also here: the nuisance draw ([`perturb`]: unbalance magnitude, ±10 % on the steering
+//! stiffnesses and dampings; unbalance phase and road noise come from the seed, MODEL.md §7).
+//!
+//! What it is not: the table builder (that is `shimmy calibrate`) or firmware-sim's drive cycle.
+
+use anyhow::{bail, Context};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::features::{Extractor, Features};
+use super::sensor::SensorModel;
+use super::ObserverConfig;
+use crate::analysis::filter::Bandpass;
+use crate::events::{Detector, Sample};
+use crate::model::rhs::ix;
+use crate::model::{Integrator, Scenario, Simulator, VehicleParams};
+
+/// Ranges of the nuisances drawn per simulated vehicle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NuisanceRanges {
+    /// Relative ± spread on stiffnesses and dampings (0.1 = ±10 %).
+    pub stiffness_damping_rel: f64,
+    /// Unbalance magnitude factor range (log-uniform).
+    pub unbalance_factor: (f64, f64),
+}
+
+impl Default for NuisanceRanges {
+    fn default() -> Self {
+        NuisanceRanges {
+            stiffness_damping_rel: 0.10,
+            unbalance_factor: (0.5, 2.0),
+        }
+    }
+}
+
+/// A vehicle like `nominal` with nuisances drawn from `rng`: each steering stiffness and
+/// damping (k_s, c_s, k_t, k_g, c_g) scaled by an independent uniform factor in ±rel, and the
+/// unbalance scaled by a log-uniform factor.
+pub fn perturb(nominal: &VehicleParams, r: &NuisanceRanges, rng: &mut ChaCha8Rng) -> VehicleParams {
+    let mut p = nominal.clone();
+    let mut f = |x: &mut f64| *x *= 1.0 + rng.random_range(-1.0..=1.0) * r.stiffness_damping_rel;
+    let s = &mut p.steering;
+    f(&mut s.kingpin_stiffness_nm_per_rad);
+    f(&mut s.kingpin_damping_nms_per_rad);
+    f(&mut s.tie_rod_stiffness_n_per_m);
+    f(&mut s.restraint_stiffness_n_per_m);
+    f(&mut s.restraint_damping_ns_per_m);
+    let (lo, hi) = r.unbalance_factor;
+    let u = (lo.ln() + rng.random::<f64>() * (hi.ln() - lo.ln())).exp();
+    p.excitation.unbalance_kgm *= u;
+    p
+}
+
+/// What one simulated event gives.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SimulatedEvent {
+    /// Features of the sensor-sampled δ_sw, as measured.
+    pub features: Features,
+    /// MODEL.md §11 steering-wheel amplitude from the continuous 1 kHz δ_sw (deg).
+    pub true_peak_deg: f64,
+    /// What the detector measured.
+    pub v0_kmh: f64,
+    pub decel_g: f64,
+    pub used: bool,
+}
+
+/// Runs the §6 event at (`clearance_m`, `v0_mps`, `decel_g`) with `seed` on vehicle `p`.
+pub fn simulate_event(
+    p: &VehicleParams,
+    clearance_m: f64,
+    v0_mps: f64,
+    decel_g: f64,
+    seed: u64,
+    sensor: &SensorModel,
+    cfg: &ObserverConfig,
+) -> anyhow::Result<SimulatedEvent> {
+    let g = p.vehicle.gravity_mps2;
+    let onset = p.braking.onset_s;
+    let stop_s = onset + p.braking.ramp_s / 2.0 + v0_mps / (decel_g * g).max(0.1);
+    let sc = Scenario {
+        clearance_m,
+        seed,
+        v0_mps,
+        decel_g,
+        duration_s: (stop_s + cfg.events.tail_s + 0.5).min(3600.0),
+        h_s: 1e-4,
+        integrator: Integrator::Rk4WarmSlip,
+        ..Scenario::default()
+    };
+    let mut sim = Simulator::new(p, &sc).context("model scenario")?;
+    let n_steps = (sc.duration_s / sc.h_s).round() as usize;
+    let stride = 10; // 1 kHz output
+    let fs_true = 1.0 / (sc.h_s * stride as f64);
+    let mut sw = Vec::with_capacity(n_steps / stride + 1);
+    let mut speed = Vec::with_capacity(n_steps / stride + 1);
+    for k in 0..=n_steps {
+        if k % stride == 0 {
+            sw.push(sim.model().delta_sw(sim.state()));
+            speed.push(sim.state()[ix::V]);
+        }
+        if k < n_steps {
+            sim.step();
+        }
+    }
+    if sw.iter().any(|x| !x.is_finite()) {
+        bail!("model diverged (c = {clearance_m} m, v0 = {v0_mps} m/s, {decel_g} g, seed {seed})");
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0b5e_77e5);
+    let mut steer = Vec::with_capacity(sw.len() / 5);
+    sensor.sample_into(&sw, fs_true, &mut rng, &mut steer);
+
+    // Merge the steering samples with a 50 Hz speed signal into the detector's stream.
+    let mut det = Detector::new(cfg.events.clone());
+    let mut ex = Extractor::new();
+    let speed_period_ns = 20_000_000i64;
+    let mut next_speed_ns = 5_000_000i64;
+    let mut found = None;
+    let mut feed =
+        |s: Sample, det: &mut Detector| -> Option<(crate::events::EventRecord, Option<Features>)> {
+            let fin = det.push(&s)?;
+            let r = fin.record;
+            let t0 = (r.t_start_s * 1e9).round() as i64;
+            let t1 = ((r.t_end_s + cfg.events.tail_s) * 1e9).round() as i64;
+            let f = ex
+                .extract(
+                    fin.samples,
+                    t0,
+                    t1,
+                    cfg.features.sensor,
+                    r.quality.quant_step_deg,
+                )
+                .ok();
+            Some((r, f))
+        };
+    let brake_at = |t_ns: i64| t_ns as f64 * 1e-9 >= onset;
+    for &(t_ns, a) in &steer {
+        while next_speed_ns <= t_ns && found.is_none() {
+            let i = ((next_speed_ns as f64 * 1e-9) * fs_true).round() as usize;
+            let v = speed[i.min(speed.len() - 1)];
+            let s = Sample {
+                t_ns: next_speed_ns,
+                speed_mps: Some(v),
+                brake: Some(brake_at(next_speed_ns)),
+                ..Default::default()
+            };
+            found = feed(s, &mut det);
+            next_speed_ns += speed_period_ns;
+        }
+        if found.is_some() {
+            break;
+        }
+        let s = Sample {
+            t_ns,
+            steer_rad: Some(a),
+            brake: Some(brake_at(t_ns)),
+            ..Default::default()
+        };
+        found = feed(s, &mut det);
+        if found.is_some() {
+            break;
+        }
+    }
+    let (rec, feats) = match found {
+        Some(x) => x,
+        None => {
+            let fin = det
+                .flush()
+                .context("the detector found no braking event in the simulated run")?;
+            let r = fin.record;
+            let t0 = (r.t_start_s * 1e9).round() as i64;
+            let t1 = ((r.t_end_s + cfg.events.tail_s) * 1e9).round() as i64;
+            let f = ex
+                .extract(
+                    fin.samples,
+                    t0,
+                    t1,
+                    cfg.features.sensor,
+                    r.quality.quant_step_deg,
+                )
+                .ok();
+            (r, f)
+        }
+    };
+    let features = feats.context("too few steering samples in the simulated event")?;
+    // True amplitude: 1 kHz δ_sw, same band-pass, same window.
+    let bp = Bandpass::new(fs_true, 3.0, 25.0, 4)?;
+    let y = bp.filtfilt(&sw);
+    let i0 = (rec.t_start_s * fs_true).round() as usize;
+    let i1 = (((rec.t_end_s + cfg.events.tail_s) * fs_true).round() as usize + 1).min(y.len());
+    let true_peak_deg = crate::analysis::peak_abs(&y[i0.min(i1)..i1]).to_degrees();
+    Ok(SimulatedEvent {
+        features,
+        true_peak_deg,
+        v0_kmh: rec.v0_kmh,
+        decel_g: rec.decel_g,
+        used: rec.used,
+    })
+}

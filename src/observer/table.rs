@@ -1,0 +1,267 @@
+//! The response table (issue 5 item 3): for a grid of clearance × initial speed × deceleration,
+//! the distribution of the per-event features ([`super::features`]) the model predicts after the
+//! sensor model, over many seeds with the nuisances drawn (unbalance phase and magnitude, road
+//! noise, ±10 % on stiffness and damping).
+//!
+//! Each cell keeps the mean, standard deviation and correlation of z (floored logs of the
+//! band-passed RMS and peak, [`super::features::z`]); [`ResponseTable::predict`] interpolates them bilinearly in (speed, decel). The
+//! table also keeps a calibration of the steering-wheel amplitude: how the true (continuous,
+//! 1 kHz) band-passed peak relates to the measured noise-corrected RMS, used by the
+//! `shimmy_55kmh` alert.
+//!
+//! The table is versioned by a hash of the vehicle parameters it was built from
+//! ([`vehicle_hash`]); [`ResponseTable::check_vehicle`] refuses a mismatch. Building it needs the
+//! model and lives in `shimmy calibrate` ([`crate::cli::calibrate`]); this module is the data
+//! structure, its file format (JSON) and its lookups only.
+
+use anyhow::{bail, Context};
+use serde::{Deserialize, Serialize};
+
+use super::sensor::SensorModel;
+
+pub const FORMAT: &str = "shimmy response table v1";
+
+/// Distribution of z = (ln rms_deg, ln peak_deg) in one grid cell.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Cell {
+    pub mean: [f64; 2],
+    pub std: [f64; 2],
+    pub corr: f64,
+}
+
+/// Mean and covariance of z predicted for one clearance.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Prediction {
+    pub mean: [f64; 2],
+    pub std: [f64; 2],
+    pub corr: f64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ResponseTable {
+    pub format: String,
+    /// FNV-1a hash of the vehicle parameters' canonical JSON.
+    pub vehicle_hash: String,
+    pub sensor: SensorModel,
+    /// Grid axes (increasing).
+    pub clearance_mm: Vec<f64>,
+    pub speed_kmh: Vec<f64>,
+    pub decel_g: Vec<f64>,
+    /// Seeds per cell.
+    pub seeds: u32,
+    /// Cells, index `(ic · n_speed + iv) · n_decel + id`.
+    pub cells: Vec<Cell>,
+    /// Amplitude calibration: increasing measured excess RMS (deg) → median true band-passed
+    /// peak of δ_sw (deg), as pairs.
+    pub amp_map: Vec<[f64; 2]>,
+    /// How the table was built (free text: command, time, nuisances).
+    #[serde(default)]
+    pub provenance: String,
+}
+
+/// FNV-1a 64 of `bytes`, as 16 hex digits. Used for the vehicle-parameter version stamp (not a
+/// security hash: it detects a wrong or edited vehicle file, not an adversary).
+pub fn fnv1a_hex(bytes: &[u8]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
+/// Version stamp of a vehicle: the hash of its parameters serialised as JSON.
+pub fn vehicle_hash<T: Serialize>(params: &T) -> anyhow::Result<String> {
+    let json = serde_json::to_vec(params).context("cannot serialise vehicle parameters")?;
+    Ok(fnv1a_hex(&json))
+}
+
+/// Index `i` and weight `w` such that `x ≈ (1−w)·axis[i] + w·axis[i+1]`, clamped to the ends.
+fn bracket(axis: &[f64], x: f64) -> (usize, f64) {
+    if axis.len() < 2 || x <= axis[0] {
+        return (0, 0.0);
+    }
+    let n = axis.len();
+    if x >= axis[n - 1] {
+        return (n - 2, 1.0);
+    }
+    let i = axis.partition_point(|&a| a <= x) - 1;
+    let w = (x - axis[i]) / (axis[i + 1] - axis[i]);
+    (i, w)
+}
+
+impl ResponseTable {
+    pub fn n_clearance(&self) -> usize {
+        self.clearance_mm.len()
+    }
+
+    fn idx(&self, ic: usize, iv: usize, id: usize) -> usize {
+        (ic * self.speed_kmh.len() + iv) * self.decel_g.len() + id
+    }
+
+    pub fn cell(&self, ic: usize, iv: usize, id: usize) -> &Cell {
+        &self.cells[self.idx(ic, iv, id)]
+    }
+
+    /// Checks shape, ordering and finiteness.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        if self.format != FORMAT {
+            bail!(
+                "not a response table: format `{}` (want `{FORMAT}`)",
+                self.format
+            );
+        }
+        for (name, axis) in [
+            ("clearance_mm", &self.clearance_mm),
+            ("speed_kmh", &self.speed_kmh),
+            ("decel_g", &self.decel_g),
+        ] {
+            if axis.is_empty() || axis.windows(2).any(|w| !(w[1] > w[0])) {
+                bail!("table axis {name} must be non-empty and strictly increasing");
+            }
+        }
+        if self.clearance_mm.len() < 2 {
+            bail!("table needs at least 2 clearances");
+        }
+        let want = self.clearance_mm.len() * self.speed_kmh.len() * self.decel_g.len();
+        if self.cells.len() != want {
+            bail!("table has {} cells, its axes need {want}", self.cells.len());
+        }
+        for (k, c) in self.cells.iter().enumerate() {
+            let ok = c.mean.iter().chain(c.std.iter()).all(|v| v.is_finite())
+                && c.std.iter().all(|&s| s > 0.0)
+                && c.corr.abs() < 1.0;
+            if !ok {
+                bail!("table cell {k} is not a valid distribution: {c:?}");
+            }
+        }
+        Ok(())
+    }
+
+    /// Loads and validates a table file.
+    pub fn load(path: &std::path::Path) -> anyhow::Result<ResponseTable> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read response table {}", path.display()))?;
+        let t: ResponseTable = serde_json::from_str(&text)
+            .with_context(|| format!("{} is not a response table", path.display()))?;
+        t.validate()
+            .with_context(|| format!("response table {}", path.display()))?;
+        Ok(t)
+    }
+
+    /// Refuses a table built for other vehicle parameters.
+    pub fn check_vehicle(&self, hash: &str) -> anyhow::Result<()> {
+        if self.vehicle_hash != hash {
+            bail!(
+                "response table was built for vehicle parameters {} but the vehicle given hashes to \
+                 {hash}; rebuild it with `shimmy calibrate --vehicle FILE`",
+                self.vehicle_hash
+            );
+        }
+        Ok(())
+    }
+
+    /// Predicted distribution of z for clearance index `ic` at (`v0_kmh`, `decel_g`), bilinear
+    /// in speed and deceleration (clamped at the grid's edges). No allocation.
+    pub fn predict(&self, ic: usize, v0_kmh: f64, decel_g: f64) -> Prediction {
+        let (iv, wv) = bracket(&self.speed_kmh, v0_kmh);
+        let (id, wd) = bracket(&self.decel_g, decel_g);
+        let nv = self.speed_kmh.len();
+        let nd = self.decel_g.len();
+        let mut p = Prediction::default();
+        for (dv, fv) in [(0usize, 1.0 - wv), (1, wv)] {
+            for (dd, fd) in [(0usize, 1.0 - wd), (1, wd)] {
+                let f = fv * fd;
+                if f == 0.0 {
+                    continue;
+                }
+                let c = self.cell(ic, (iv + dv).min(nv - 1), (id + dd).min(nd - 1));
+                for k in 0..2 {
+                    p.mean[k] += f * c.mean[k];
+                    p.std[k] += f * c.std[k];
+                }
+                p.corr += f * c.corr;
+            }
+        }
+        p
+    }
+
+    /// Reduces the seed noise of the cell means: for each speed, the means are averaged over the
+    /// deceleration axis (its effect is small next to the seed spread, MODEL.md §13 varies speed
+    /// and clearance only) and then made non-decreasing in clearance by isotonic regression
+    /// (pool-adjacent-violators; the shimmy amplitude grows with clearance, MODEL.md §12–13).
+    /// Spreads and correlations are kept.
+    pub fn smooth(&mut self) {
+        let (nc, nv, nd) = (
+            self.clearance_mm.len(),
+            self.speed_kmh.len(),
+            self.decel_g.len(),
+        );
+        for k in 0..2 {
+            for iv in 0..nv {
+                let mut y: Vec<f64> = (0..nc)
+                    .map(|ic| {
+                        (0..nd).map(|id| self.cell(ic, iv, id).mean[k]).sum::<f64>() / nd as f64
+                    })
+                    .collect();
+                isotonic_in_place(&mut y);
+                for (ic, &m) in y.iter().enumerate() {
+                    for id in 0..nd {
+                        let i = self.idx(ic, iv, id);
+                        self.cells[i].mean[k] = m;
+                    }
+                }
+            }
+        }
+    }
+
+    /// The steering-wheel amplitude (deg) the amplitude calibration gives for a measured excess
+    /// RMS; linear interpolation, proportional extrapolation beyond the ends.
+    pub fn amplitude_deg(&self, excess_rms_deg: f64) -> Option<f64> {
+        amp_from_map(&self.amp_map, excess_rms_deg)
+    }
+}
+
+/// Least-squares non-decreasing fit of `y` (equal weights), in place: pool adjacent violators.
+pub fn isotonic_in_place(y: &mut [f64]) {
+    let mut blocks: Vec<(f64, usize)> = Vec::with_capacity(y.len());
+    for &v in y.iter() {
+        blocks.push((v, 1));
+        while blocks.len() > 1 {
+            let (b, nb) = blocks[blocks.len() - 1];
+            let (a, na) = blocks[blocks.len() - 2];
+            if a <= b {
+                break;
+            }
+            blocks.pop();
+            let last = blocks.len() - 1;
+            blocks[last] = ((a * na as f64 + b * nb as f64) / (na + nb) as f64, na + nb);
+        }
+    }
+    let mut i = 0;
+    for (v, n) in blocks {
+        for x in &mut y[i..i + n] {
+            *x = v;
+        }
+        i += n;
+    }
+}
+
+/// Interpolates an increasing `[x, y]` map; beyond its ends scales y proportionally to x.
+pub fn amp_from_map(map: &[[f64; 2]], x: f64) -> Option<f64> {
+    let first = map.first()?;
+    let last = map.last()?;
+    if x <= first[0] {
+        return Some(if first[0] > 0.0 {
+            first[1] * x / first[0]
+        } else {
+            first[1]
+        });
+    }
+    if x >= last[0] {
+        return Some(last[1] * x / last[0]);
+    }
+    let i = map.partition_point(|p| p[0] <= x) - 1;
+    let (a, b) = (map[i], map[i + 1]);
+    Some(a[1] + (b[1] - a[1]) * (x - a[0]) / (b[0] - a[0]))
+}

@@ -1,0 +1,194 @@
+//! The estimator's math against a synthetic response table with a known law (issue 5 item 3):
+//! accumulation over events, credible intervals, the detection limit, wear tracking, the
+//! clearance alert's probability, and the table's version check.
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use shimmy::observer::estimator::{Estimator, EstimatorConfig};
+use shimmy::observer::sensor::SensorModel;
+use shimmy::observer::table::{Cell, ResponseTable, FORMAT};
+use shimmy::observer::ObserverConfig;
+
+/// A law with a floor like MODEL.md §13's steering wheel: rms = sqrt(0.04² + (0.25·c·s)²) with
+/// s = min(v/55, 1) (speed matters), peak = 2.2·rms; ln-normal spread 0.15.
+fn law(c_mm: f64, v_kmh: f64) -> (f64, f64) {
+    let s = (v_kmh / 55.0).min(1.0);
+    let rms = (0.04f64.powi(2) + (0.25 * c_mm * s).powi(2)).sqrt();
+    (rms.ln(), (2.2 * rms).ln())
+}
+const SPREAD: f64 = 0.15;
+
+fn table() -> ResponseTable {
+    let nc = 25;
+    let clearance_mm: Vec<f64> = (0..nc)
+        .map(|i| 0.02 * (0.5f64 / 0.02).powf(i as f64 / (nc - 1) as f64))
+        .collect();
+    let speed_kmh = vec![20.0, 40.0, 60.0, 80.0, 120.0];
+    let decel_g = vec![0.3, 0.8];
+    let mut cells = Vec::new();
+    for &c in &clearance_mm {
+        for &v in &speed_kmh {
+            for _ in &decel_g {
+                let (a, b) = law(c, v);
+                let z = shimmy::observer::features::z(a.exp(), b.exp());
+                cells.push(Cell {
+                    mean: z,
+                    std: [SPREAD, SPREAD],
+                    corr: 0.8,
+                });
+            }
+        }
+    }
+    let t = ResponseTable {
+        format: FORMAT.into(),
+        vehicle_hash: "0123456789abcdef".into(),
+        sensor: SensorModel::default(),
+        clearance_mm,
+        speed_kmh,
+        decel_g,
+        seeds: 1,
+        cells,
+        amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
+        provenance: "synthetic".into(),
+    };
+    t.validate().unwrap();
+    t
+}
+
+/// Draws one event's (rms, peak) from the law with correlated log-normal noise.
+fn draw(rng: &mut ChaCha8Rng, c_mm: f64, v: f64) -> (f64, f64) {
+    let n = Normal::new(0.0, 1.0).unwrap();
+    let (a, b) = law(c_mm, v);
+    let z1: f64 = n.sample(rng);
+    let z2: f64 = 0.8 * z1 + 0.6 * n.sample(rng);
+    ((a + SPREAD * z1).exp(), (b + SPREAD * z2).exp())
+}
+
+fn run(c_mm: f64, events: usize, seed: u64) -> Estimator {
+    let t = table();
+    let mut e = Estimator::new(&t, EstimatorConfig::default()).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    for k in 0..events {
+        let v = 30.0 + (k % 8) as f64 * 10.0;
+        let (r, p) = draw(&mut rng, c_mm, v);
+        e.update(&t, r, p, v, 0.5, k as f64 * 2000.0);
+    }
+    e
+}
+
+#[test]
+fn thirty_events_pin_a_large_clearance_down() {
+    for (c, seed) in [(0.15, 1), (0.25, 2), (0.4, 3)] {
+        let e = run(c, 30, seed);
+        let s = e.summary();
+        assert!(s.detectable, "{c}: {s:?}");
+        assert!(
+            (s.median_mm - c).abs() < 0.15 * c,
+            "c = {c}: median {}",
+            s.median_mm
+        );
+        assert!(s.q05_mm < c && c < s.q95_mm, "c = {c}: {s:?}");
+        assert_eq!(s.events_used, 30);
+    }
+}
+
+#[test]
+fn one_event_is_much_less_certain_than_thirty() {
+    let one = run(0.2, 1, 7).summary();
+    let many = run(0.2, 30, 7).summary();
+    let w1 = (one.q95_mm / one.q05_mm).ln();
+    let w30 = (many.q95_mm / many.q05_mm).ln();
+    assert!(w30 < 0.4 * w1, "interval widths (ln) {w1} vs {w30}");
+}
+
+#[test]
+fn below_the_floor_it_says_so_and_the_bound_holds() {
+    for (c, seed) in [(0.03, 4), (0.05, 5)] {
+        let e = run(c, 30, seed);
+        let s = e.summary();
+        assert!(!s.detectable, "c = {c}: {s:?}");
+        assert!(s.q95_mm > c, "'below {}' must hold for c = {c}", s.q95_mm);
+        assert!(s.q95_mm < 0.12, "and be informative: {}", s.q95_mm);
+        assert!(e.prob_above(0.1) < 0.5);
+    }
+}
+
+#[test]
+fn clearance_probability_separates_worn_from_new() {
+    assert!(run(0.25, 30, 8).prob_above(0.1) > 0.99);
+    assert!(run(0.04, 30, 9).prob_above(0.1) < 0.05);
+}
+
+#[test]
+fn posterior_follows_wear_through_the_random_walk() {
+    // 40 events at 0.1 mm, then 40 at 0.25 mm, 2 km apart: with wear diffusion the estimate
+    // must move to the new value; without it, old evidence holds it back.
+    let t = table();
+    let go = |wear: f64| {
+        let cfg = EstimatorConfig {
+            wear_var_per_km: wear,
+            ..EstimatorConfig::default()
+        };
+        let mut e = Estimator::new(&t, cfg).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        for k in 0..80 {
+            let c = if k < 40 { 0.1 } else { 0.25 };
+            let (r, p) = draw(&mut rng, c, 60.0);
+            e.update(&t, r, p, 60.0, 0.5, k as f64 * 2000.0);
+        }
+        e.summary().median_mm
+    };
+    let with = go(0.01);
+    let without = go(0.0);
+    assert!((with - 0.25).abs() < 0.04, "with wear diffusion {with}");
+    assert!(without < with - 0.02, "without {without} vs with {with}");
+}
+
+#[test]
+fn quantiles_are_monotone_and_probabilities_sum_to_one() {
+    let e = run(0.12, 10, 12);
+    let s: f64 = e.probabilities().sum();
+    assert!((s - 1.0).abs() < 1e-9);
+    let mut prev = 0.0;
+    for q in [0.01, 0.05, 0.25, 0.5, 0.75, 0.95, 0.99] {
+        let x = e.quantile_mm(q);
+        assert!(x > prev, "quantile {q}");
+        prev = x;
+    }
+    assert!((e.prob_above(e.quantile_mm(0.3)) - 0.7).abs() < 1e-6);
+}
+
+#[test]
+fn a_table_for_other_vehicle_parameters_is_refused() {
+    let t = table();
+    assert!(t.check_vehicle("0123456789abcdef").is_ok());
+    let err = t.check_vehicle("fedcba9876543210").unwrap_err().to_string();
+    assert!(err.contains("calibrate"), "{err}");
+    let mut bad = t.clone();
+    bad.cells.pop();
+    assert!(bad.validate().is_err());
+}
+
+#[test]
+fn the_shipped_config_parses_and_equals_the_defaults() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/observer.toml");
+    let cfg = ObserverConfig::load(&path).unwrap();
+    assert_eq!(cfg, ObserverConfig::default());
+    assert!(ObserverConfig::from_toml_str("[alerts]\nshimmy_amplitud_deg = 1").is_err());
+}
+
+#[test]
+fn isotonic_fit_is_monotone_and_keeps_sorted_data() {
+    use shimmy::observer::table::isotonic_in_place;
+    let mut y = vec![1.0, 3.0, 2.0, 4.0, 0.0];
+    isotonic_in_place(&mut y);
+    assert!(y.windows(2).all(|w| w[0] <= w[1]), "{y:?}");
+    assert!(
+        (y.iter().sum::<f64>() - 10.0).abs() < 1e-12,
+        "pooling keeps the sum"
+    );
+    let mut s = vec![0.1, 0.2, 0.5];
+    isotonic_in_place(&mut s);
+    assert_eq!(s, vec![0.1, 0.2, 0.5]);
+}
