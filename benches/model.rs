@@ -7,7 +7,7 @@
 //! warm-started and stopped at convergence. `run_1khz`: `shimmy::model::run`, i.e. the
 //! specified scheme plus the 1 kHz output trace.
 
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::{criterion_group, Criterion};
 use shimmy::model::{run, Integrator, Scenario, Simulator, VehicleParams};
 use std::hint::black_box;
 
@@ -42,5 +42,34 @@ fn bench(c: &mut Criterion) {
     g.finish();
 }
 
+/// CPU seconds of this thread per 10 s event (median of 5), independent of the machine load
+/// that inflates criterion's wall-clock figures on a shared machine.
+fn cpu_report() {
+    use shimmy::cli::simulate::thread_cpu_s;
+    for (name, integ) in [
+        ("rk4_spec", Integrator::Rk4),
+        ("rk4_warm_slip", Integrator::Rk4WarmSlip),
+    ] {
+        let mut t: Vec<f64> = (0..5)
+            .map(|_| {
+                let t0 = thread_cpu_s();
+                black_box(event(integ));
+                thread_cpu_s() - t0
+            })
+            .collect();
+        t.sort_by(|a, b| a.total_cmp(b));
+        println!(
+            "cpu-time {name}: median {:.1} ms per 10 s event (min {:.1} ms)",
+            t[2] * 1e3,
+            t[0] * 1e3
+        );
+    }
+}
+
 criterion_group!(benches, bench);
-criterion_main!(benches);
+
+fn main() {
+    cpu_report();
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+}

@@ -14,10 +14,14 @@
 //!
 //! Units are SI inside; degrees, km/h, mm and bar appear only at the edges and names say so.
 
+pub mod alerts;
 pub mod analysis;
 pub mod cli;
+pub mod daemon;
 pub mod dbc;
+pub mod journal;
 pub mod model;
+pub mod report;
 pub mod shared_data;
 pub mod signals;
 pub mod source;

@@ -53,6 +53,7 @@ fn logistic_map_r4_has_exponent_ln2() {
         t_end: 60.0,
         saturation: 1e-3,
         min_points: 8,
+        min_span: 5.0,
     };
     let n = 60;
     let t: Vec<f64> = (0..n).map(|i| i as f64).collect();

@@ -147,6 +147,14 @@ fn known_quirks_are_reported_not_fatal() {
     if let Some((_db, r, _)) = load("dbc/cantools/cp1252.dbc") {
         assert_eq!(r.encoding, "windows-1252");
     }
+    // Names cut to 32 characters get their full names from SystemMessageLongSymbol /
+    // SystemSignalLongSymbol (as cantools does), after VAL_ etc. resolved the short ones.
+    if let Some((db, r, _)) = load("dbc/cantools/issue_784.dbc") {
+        assert!(r.skipped.is_empty(), "{r}");
+        assert!(db
+            .message_by_name("Message_1_12345678901234567890123456789012")
+            .is_some());
+    }
     // 29-bit IDs written without the extended flag.
     if let Some((db, r, _)) = load("dbc/cantools/issue_199.dbc") {
         assert!(r.skipped.is_empty(), "{r}");

@@ -109,9 +109,15 @@ proptest! {
 
     /// Arbitrary DBC-like text never panics the loader.
     #[test]
-    fn parse_arbitrary_text_never_panics(text in "(BO_|SG_|CM_|VAL_|SG_MUL_VAL_|SIG_VALTYPE_|BA_|NS_|BU_|[ \\t\\n:;|@+\\-\"(),\\[\\]0-9a-zA-Z_]){0,300}") {
+    fn parse_arbitrary_text_never_panics(text in "(BO_ 1 M: 8 A\n|SG_|\n SG_ S : 0\\|8@1\\+ \\(1,0\\) \\[0\\|0\\] \"\" A|M |m1 |m2M |CM_|VAL_|SG_MUL_VAL_ 1 S M 1-2;|SIG_VALTYPE_ 1 S : 1;|BA_|NS_|BU_|[ \\t\\n:;|@+\\-\"(),\\[\\]0-9a-zA-Z_]){0,300}") {
         let (db, report) = Database::parse(&text);
         prop_assert_eq!(report.messages, db.messages().len());
+        // Whatever loaded also decodes any payload without panicking.
+        for m in db.messages() {
+            for len in [0usize, 3, 8, 64] {
+                let _ = m.decode(&[0xA5u8; 64][..len], |_, _, _| {});
+            }
+        }
     }
 
     #[test]

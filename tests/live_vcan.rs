@@ -281,15 +281,26 @@ fn reference_bus_load_arrives_complete_and_in_order() {
     );
 
     // Real-time schedule on a 10 ms tick: the 100 Hz message every tick, the 50 Hz ones on
-    // alternate ticks (staggered as ECUs would be).
+    // alternate ticks (staggered as ECUs would be). Like an ECU, the sender never bursts to
+    // catch up after a stall (a busy host can stall the VM's vCPU): late ticks shift the
+    // schedule, so the load never exceeds the reference rate.
     let mut sink = LiveSink::open(&iface).unwrap();
     let mut sent: BTreeMap<u32, u64> = BTreeMap::new();
+    let tick_len = Duration::from_millis(10);
     let start = Instant::now();
+    let mut due = start;
+    let mut late_ticks = 0u32;
     for tick in 0..seconds * 100 {
-        let due = start + Duration::from_millis(tick as u64 * 10);
-        if let Some(w) = due.checked_duration_since(Instant::now()) {
-            thread::sleep(w);
+        let now = Instant::now();
+        match due.checked_duration_since(now) {
+            Some(w) => thread::sleep(w),
+            None if now - due > tick_len => {
+                late_ticks += 1;
+                due = now;
+            }
+            None => {}
         }
+        due += tick_len;
         for (k, &(id, hz)) in REFERENCE_BUS.iter().enumerate() {
             let every = 100 / hz;
             if (tick + k as u32) % every == 0 {
@@ -312,7 +323,8 @@ fn reference_bus_load_arrives_complete_and_in_order() {
     }
     print_counts("reference_bus_load", &sent, &received);
     println!(
-        "reference bus load: {} frames in {send_s:.2} s ({:.0} frames/s), received {}, kernel drops {}",
+        "reference bus load: {} frames in {send_s:.2} s ({:.0} frames/s, {late_ticks} late ticks), \
+         received {}, kernel drops {}",
         sent.values().sum::<u64>(),
         sent.values().sum::<u64>() as f64 / send_s,
         got.len(),
@@ -470,17 +482,18 @@ fn interface_down_up_reconnects_with_backoff() {
     let log2 = log.clone();
     src.on_event(move |e| log2.lock().unwrap().push(e.to_string()));
     let stop = src.stop_handle();
+    let got = Arc::new(Mutex::new(Vec::new()));
+    let got2 = got.clone();
     let reader = thread::spawn(move || {
-        let mut got = Vec::new();
         loop {
             match src.next_frame() {
-                Ok(Some(f)) => got.push(seq_of(&f)),
+                Ok(Some(f)) => got2.lock().unwrap().push(seq_of(&f)),
                 Ok(None) => break,
                 Err(e) if e.kind() == io::ErrorKind::TimedOut => {}
                 Err(e) => panic!("next_frame returned an error instead of reconnecting: {e}"),
             }
         }
-        (got, src)
+        src
     });
     let wait_for = |what: &str| {
         let end = Instant::now() + Duration::from_secs(5);
@@ -516,12 +529,13 @@ fn interface_down_up_reconnects_with_backoff() {
     drop(sink); // its socket was bound before the link went down
     let mut sink = LiveSink::open(&iface).unwrap();
     sink.send(&seq_frame(ID, 2)).unwrap();
-    let end = Instant::now() + Duration::from_secs(3);
-    while Instant::now() < end && !reader.is_finished() {
-        thread::sleep(Duration::from_millis(50));
-        stop.store(true, Ordering::Relaxed);
+    let end = Instant::now() + Duration::from_secs(5);
+    while Instant::now() < end && got.lock().unwrap().len() < 2 {
+        thread::sleep(Duration::from_millis(10));
     }
-    let (got, src) = reader.join().unwrap();
+    stop.store(true, Ordering::Relaxed);
+    let src = reader.join().unwrap();
+    let got = got.lock().unwrap().clone();
     let log = log.lock().unwrap().join("\n");
     println!("link down/up:\n{log}");
     assert_eq!(got, [1, 2], "frames before and after the link bounce");
@@ -548,7 +562,7 @@ fn read_timeout_and_stop_flag() {
     let waited = t.elapsed();
     assert_eq!(e.kind(), io::ErrorKind::TimedOut);
     assert!(
-        waited >= Duration::from_millis(90) && waited < Duration::from_secs(2),
+        waited >= Duration::from_millis(90) && waited < Duration::from_secs(5),
         "timeout after {waited:?}"
     );
     src.stop_handle().store(true, Ordering::Relaxed);

@@ -498,9 +498,9 @@ impl ReferenceBus {
     fn produce(&mut self, e: usize, send_ns: i64, s: &Sample) -> Option<Frame> {
         let nf = self.ecus[e].fields.len();
         let mut values = [0.0; MAX_FIELDS];
-        for i in 0..nf {
+        for (i, v) in values.iter_mut().enumerate().take(nf) {
             let q = self.ecus[e].fields[i].quantity;
-            values[i] = self.value(e, q, s);
+            *v = self.value(e, q, s);
         }
         let in_window = |w: &[(i64, i64)]| w.iter().any(|&(a, b)| send_ns >= a && send_ns < b);
         {

@@ -20,7 +20,7 @@ const HOLD_DECEL_G: f64 = 0.3;
 /// Speed regarded as standing still (m/s).
 const V_STANDSTILL_MPS: f64 = 0.02;
 /// Time constant of the approach to a cruise speed (s).
-const CRUISE_TAU_S: f64 = 1.5;
+const CRUISE_TAU_S: f64 = 0.6;
 /// Jerk limit on non-braking demand changes (m/s³).
 const JERK_MPS3: f64 = 3.0;
 /// Speed error below which a cruise speed counts as reached (m/s).

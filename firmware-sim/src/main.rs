@@ -23,7 +23,8 @@ use firmware_sim::{FirmwareSim, RunInfo, Scenario};
 /// Output (one of):
 ///   --out LOG        a candump -L log, written as fast as the model runs ("-" = stdout);
 ///   --iface IFACE    frames sent on a SocketCAN interface (e.g. vcan0) in real time, or at
-///                    N× real time with --speed N (0 = as fast as possible).
+///                    N× real time with --speed N (0 = as fast as possible); add --out LOG to
+///                    also record what was sent.
 ///
 /// Always written: a ground-truth sidecar (JSON) with the scenario name, file and seed, the true
 /// clearance, each braking event (t_start_s, t_end_s, v0_kmh,
@@ -70,8 +71,8 @@ struct Cli {
     #[arg(long, value_name = "S")]
     seed: Option<u64>,
 
-    /// Write a candump -L log here ("-" for stdout).
-    #[arg(long, value_name = "LOG", conflicts_with = "iface")]
+    /// Write a candump -L log here ("-" for stdout). With --iface: also record what was sent.
+    #[arg(long, value_name = "LOG")]
     out: Option<PathBuf>,
 
     /// Ground-truth sidecar (JSON). Default: the log path with its extension replaced by
@@ -140,12 +141,21 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         .clone()
         .unwrap_or_else(|| default_truth_path(&cli, &scenario.name));
     let wall = Instant::now();
-    if let Some(out) = &cli.out {
-        sim.set_iface("vcan0");
-        write_log(&mut sim, out)?;
-    } else if let Some(iface) = &cli.iface {
+    let mut log = match &cli.out {
+        Some(out) => Some(LogOut::create(out)?),
+        None => None,
+    };
+    if let Some(iface) = &cli.iface {
         sim.set_iface(iface);
-        send_live(&mut sim, iface, cli.speed)?;
+        send_live(&mut sim, iface, cli.speed, log.as_mut())?;
+    } else if let Some(log) = log.as_mut() {
+        sim.set_iface("vcan0");
+        for f in sim.by_ref() {
+            log.write(&f)?;
+        }
+    }
+    if let Some(log) = log {
+        log.finish()?;
     }
     let elapsed = wall.elapsed().as_secs_f64();
     let truth = sim.ground_truth();
@@ -153,7 +163,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         .with_context(|| format!("cannot write ground truth {}", truth_path.display()))?;
     if !cli.quiet {
         eprintln!(
-            "firmware-sim: {} ({}, seed {}): {:.1} s simulated in {:.2} s ({:.0}x real time), {:.2} km, {} frames",
+            "firmware-sim: {} ({}, seed {}): {:.1} s simulated in {:.2} s ({:.1}x real time), {:.2} km, {} frames",
             scenario.name,
             cli.scenario.display(),
             scenario.seed,
@@ -194,26 +204,38 @@ fn shimmy_dbc_text(p: &Path) -> anyhow::Result<String> {
     std::fs::read_to_string(p).with_context(|| format!("cannot read DBC {}", p.display()))
 }
 
-fn write_log<P: firmware_sim::plant::Plant>(
-    sim: &mut FirmwareSim<P>,
-    out: &Path,
-) -> anyhow::Result<()> {
-    let sink: Box<dyn Write> = if out.as_os_str() == "-" {
-        Box::new(std::io::stdout().lock())
-    } else {
-        Box::new(
-            std::fs::File::create(out)
-                .with_context(|| format!("cannot create log {}", out.display()))?,
-        )
-    };
-    let mut w = std::io::BufWriter::with_capacity(1 << 16, sink);
-    for f in sim.by_ref() {
-        shimmy::wire::candump::write_frame(&mut w, &f)
-            .with_context(|| format!("cannot write log {}", out.display()))?;
+/// A candump -L log being written.
+struct LogOut {
+    w: std::io::BufWriter<Box<dyn Write>>,
+    path: PathBuf,
+}
+
+impl LogOut {
+    fn create(out: &Path) -> anyhow::Result<LogOut> {
+        let sink: Box<dyn Write> = if out.as_os_str() == "-" {
+            Box::new(std::io::stdout().lock())
+        } else {
+            Box::new(
+                std::fs::File::create(out)
+                    .with_context(|| format!("cannot create log {}", out.display()))?,
+            )
+        };
+        Ok(LogOut {
+            w: std::io::BufWriter::with_capacity(1 << 16, sink),
+            path: out.to_path_buf(),
+        })
     }
-    w.flush()
-        .with_context(|| format!("cannot write log {}", out.display()))?;
-    Ok(())
+
+    fn write(&mut self, f: &shimmy::wire::Frame) -> anyhow::Result<()> {
+        shimmy::wire::candump::write_frame(&mut self.w, f)
+            .with_context(|| format!("cannot write log {}", self.path.display()))
+    }
+
+    fn finish(mut self) -> anyhow::Result<()> {
+        self.w
+            .flush()
+            .with_context(|| format!("cannot write log {}", self.path.display()))
+    }
 }
 
 #[cfg(target_os = "linux")]
@@ -221,6 +243,7 @@ fn send_live<P: firmware_sim::plant::Plant>(
     sim: &mut FirmwareSim<P>,
     iface: &str,
     speed: f64,
+    mut log: Option<&mut LogOut>,
 ) -> anyhow::Result<()> {
     let mut sink = shimmy::source::socketcan::LiveSink::open(iface)
         .with_context(|| format!("cannot open SocketCAN interface {iface}"))?;
@@ -237,6 +260,9 @@ fn send_live<P: firmware_sim::plant::Plant>(
         }
         sink.send(&f)
             .with_context(|| format!("cannot send on {iface}"))?;
+        if let Some(log) = log.as_deref_mut() {
+            log.write(&f)?;
+        }
     }
     Ok(())
 }
@@ -246,6 +272,7 @@ fn send_live<P: firmware_sim::plant::Plant>(
     _sim: &mut FirmwareSim<P>,
     _iface: &str,
     _speed: f64,
+    _log: Option<&mut LogOut>,
 ) -> anyhow::Result<()> {
     bail!("--iface needs Linux SocketCAN; use --out LOG on this system")
 }

@@ -25,6 +25,9 @@ use crate::truth::{self, GroundTruth};
 pub const TRACE_HZ: f64 = 1000.0;
 /// Safety limit on simulated time beyond the scenario's own estimate (s).
 const EXTRA_TIME_S: f64 = 600.0;
+/// Driving on (pedal released, demand zero) after the last segment so the MODEL.md §11 window
+/// of a final braking event (its end + 0.3 s) and the band-pass around it are complete (s).
+pub const TAIL_S: f64 = 0.5;
 
 /// Scenario identity for the sidecar.
 #[derive(Clone, Debug, Default)]
@@ -54,6 +57,8 @@ pub struct FirmwareSim<P: Plant> {
     /// Clearance when each event began.
     event_clearance: Vec<(f64, f64)>,
     last_cmd: DriveCmd,
+    /// When the drive cycle ended (the tail runs from there).
+    t_cycle_end: Option<f64>,
     t_limit_s: f64,
     started: bool,
     done: bool,
@@ -111,6 +116,7 @@ impl<P: Plant> FirmwareSim<P> {
             clearance_mm,
             event_clearance: Vec::new(),
             last_cmd: DriveCmd::default(),
+            t_cycle_end: None,
             t_limit_s: est * 2.0 + EXTRA_TIME_S,
             started: false,
             done: false,
@@ -180,20 +186,26 @@ impl<P: Plant> FirmwareSim<P> {
         if self.driver.events().len() > n_events {
             self.event_clearance.push(self.clearance_mm);
         }
-        if cmd.done {
-            self.done = true;
-            return;
-        }
+        let cmd = if cmd.done {
+            let t_end = *self.t_cycle_end.get_or_insert(t);
+            if t - t_end >= TAIL_S - 0.5 * self.h_s {
+                self.done = true;
+                return;
+            }
+            DriveCmd::default()
+        } else {
+            cmd
+        };
         self.last_cmd = cmd;
         self.plant.set_decel_demand(cmd.decel_demand_mps2);
         self.plant.step();
         self.steps += 1;
         let v1 = self.plant.speed_mps();
         self.distance_m += 0.5 * (v + v1) * self.h_s;
-        if self.scenario.clearance.growth_mm_per_km > 0.0 && self.steps % 1000 == 0 {
+        if self.scenario.clearance.growth_mm_per_km > 0.0 && self.steps.is_multiple_of(1000) {
             self.apply_wear();
         }
-        if self.steps % self.trace_every == 0 {
+        if self.steps.is_multiple_of(self.trace_every) {
             self.lane_rad = self.lane.step(&mut self.lane_rng);
             self.trace.push(self.plant.steering_wheel_rad());
         }
@@ -349,5 +361,5 @@ pub fn estimate_duration_s(sc: &Scenario) -> f64 {
             Segment::Stand { duration_s } => t += duration_s,
         }
     }
-    t
+    t + TAIL_S
 }

@@ -194,7 +194,7 @@ fn brake_and_speed_signals_follow_the_drive() {
         .map(|f| v.phys(f.payload()).unwrap())
         .collect();
     assert!((speeds[0] - 55.0).abs() < 0.5);
-    assert!(speeds.iter().any(|&s| s == 0.0), "never stopped");
+    assert!(speeds.contains(&0.0), "never stopped");
 }
 
 #[test]

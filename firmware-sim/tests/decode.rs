@@ -114,7 +114,7 @@ fn cantools_decodes_the_log_to_identical_values() {
     cantools_agrees(&path, 20_000);
     cantools_agrees(
         &workspace().join("tests/fixtures/demo/worn_0p2mm.log"),
-        30_000,
+        25_000,
     );
 }
 

@@ -130,6 +130,10 @@ pub struct LyapunovOptions {
     pub saturation: f64,
     /// Fewest samples a fit may use.
     pub min_points: usize,
+    /// Shortest fitted span (same unit as t). When the separation saturates sooner after
+    /// `t_start` than this, the exponent is instead the mean growth rate from the first sample
+    /// to saturation (see [`LyapunovFit::early`]).
+    pub min_span: f64,
 }
 
 impl Default for LyapunovOptions {
@@ -139,6 +143,7 @@ impl Default for LyapunovOptions {
             t_end: 3.0,
             saturation: 0.1,
             min_points: 10,
+            min_span: 0.3,
         }
     }
 }
@@ -157,6 +162,10 @@ pub struct LyapunovFit {
     pub r2: f64,
     /// When the separation reached the saturation level, if it did inside the window.
     pub saturated_at: Option<f64>,
+    /// The separation saturated before the window held `min_span` of growth, so `lambda` is
+    /// the mean growth rate `(ln sat − ln‖Δ(t0)‖) / (t_sat − t0)` from the first sample t0 to
+    /// saturation (a finite-time exponent over that earlier span); `r2` is NaN then.
+    pub early: bool,
 }
 
 /// Per-component scales for the state difference: the RMS of each component of the reference
@@ -209,8 +218,43 @@ pub fn log_separation(
         .collect())
 }
 
-/// Fit the finite-time largest Lyapunov exponent to `ln‖Δ‖` sampled at times `t`.
+/// Fit the finite-time largest Lyapunov exponent to `ln‖Δ‖` sampled at times `t`: least
+/// squares over `[t_start, t_end]` up to saturation, or, when saturation comes within
+/// `min_span` of `t_start`, the mean growth rate up to saturation ([`LyapunovFit::early`]).
 pub fn fit_log_separation(
+    t: &[f64],
+    ln_d: &[f64],
+    opts: &LyapunovOptions,
+) -> Result<LyapunovFit, AnalysisError> {
+    let windowed = fit_window(t, ln_d, opts);
+    let short = match &windowed {
+        Ok(f) => f.saturated_at.is_some() && f.t_to - f.t_from < opts.min_span,
+        Err(_) => true,
+    };
+    if !short {
+        return windowed;
+    }
+    let ln_sat = opts.saturation.ln();
+    let first = t.iter().zip(ln_d).position(|(_, y)| y.is_finite());
+    let sat = t
+        .iter()
+        .zip(ln_d)
+        .position(|(ti, y)| *y >= ln_sat && *ti <= opts.t_start + opts.min_span);
+    match (first, sat) {
+        (Some(k0), Some(ks)) if ks > k0 && t[ks] > t[k0] => Ok(LyapunovFit {
+            lambda: (ln_sat - ln_d[k0]) / (t[ks] - t[k0]),
+            t_from: t[k0],
+            t_to: t[ks],
+            points: 2,
+            r2: f64::NAN,
+            saturated_at: Some(t[ks]),
+            early: true,
+        }),
+        _ => windowed,
+    }
+}
+
+fn fit_window(
     t: &[f64],
     ln_d: &[f64],
     opts: &LyapunovOptions,
@@ -285,6 +329,7 @@ pub fn fit_log_separation(
         points: m,
         r2,
         saturated_at,
+        early: false,
     })
 }
 
@@ -404,5 +449,17 @@ mod tests {
         let sat = fit.saturated_at.unwrap();
         assert!((sat - 2.53).abs() < 0.011, "{sat}");
         assert!(fit.t_to < sat);
+        assert!(!fit.early);
+    }
+
+    #[test]
+    fn early_saturation_falls_back_to_growth_rate_from_the_start() {
+        // ln‖Δ‖ = -20 + 25 t reaches ln 0.1 at t = 0.708 s, before the 0.8 s window opens.
+        let t: Vec<f64> = (0..400).map(|i| i as f64 * 0.01).collect();
+        let y: Vec<f64> = t.iter().map(|t| (-20.0 + 25.0 * t).min(-1.0)).collect();
+        let fit = fit_log_separation(&t, &y, &LyapunovOptions::default()).unwrap();
+        assert!(fit.early);
+        assert!((fit.lambda - 25.0).abs() < 1.0, "{}", fit.lambda);
+        assert!(fit.r2.is_nan());
     }
 }

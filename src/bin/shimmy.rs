@@ -15,6 +15,8 @@ struct Cli {
 enum Cmd {
     /// Decode CAN logs (candump -L, ASC, BLF) with a DBC file, like `cantools decode`.
     Decode(shimmy::cli::decode::Args),
+    /// Workshop inspection report (HTML or JSON) from shimmyd's journal, state, or CAN logs.
+    Report(shimmy::cli::report::Args),
     Simulate(shimmy::cli::simulate::Args),
     /// Rerun the source article's experiments on the model and regenerate docs/REPRODUCTION.md.
     Reproduce(shimmy::cli::reproduce::Args),
@@ -24,6 +26,7 @@ fn main() {
     let cli = Cli::parse();
     let result: anyhow::Result<()> = match cli.cmd {
         Cmd::Decode(a) => shimmy::cli::decode::run(a),
+        Cmd::Report(a) => shimmy::cli::report::run(a),
         Cmd::Simulate(a) => shimmy::cli::simulate::run(a),
         Cmd::Reproduce(a) => shimmy::cli::reproduce::run(a),
     };

@@ -2,5 +2,6 @@
 //! a `run` function. Help text here is the manual.
 
 pub mod decode;
-pub mod simulate;
+pub mod report;
 pub mod reproduce;
+pub mod simulate;

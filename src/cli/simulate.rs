@@ -21,13 +21,13 @@ use std::path::PathBuf;
 pub struct Args {
     /// Radial clearance of the tie-rod joints in mm (MODEL.md §4). The studied range is
     /// 0.03–0.4 mm; up to 5 mm is accepted with a warning outside the range.
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = 0.1, allow_hyphen_values = true)]
     pub clearance_mm: f64,
     /// Initial speed in km/h (studied: 25–95).
-    #[arg(long, default_value_t = 55.0)]
+    #[arg(long, default_value_t = 55.0, allow_hyphen_values = true)]
     pub v0_kmh: f64,
     /// Peak braking deceleration in g (studied: 0.3–0.8; 0 gives a constant-speed run).
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, allow_hyphen_values = true)]
     pub decel_g: f64,
     /// Single-clearance variant: the right joint is ideal (MODEL.md §4).
     #[arg(long)]

@@ -340,6 +340,10 @@ struct Building {
     msg: Message,
     pending: Vec<PendingMux>,
     ext_mux: Vec<ExtMux>,
+    /// `SystemMessageLongSymbol`: the full name, applied after all name-based references.
+    long_name: Option<String>,
+    /// `SystemSignalLongSymbol`: (short name, full name).
+    long_signal_names: Vec<(String, String)>,
 }
 
 fn convert_signal(s: &can_dbc::Signal, line: usize) -> Result<(Signal, PendingMux, bool), String> {
@@ -431,6 +435,8 @@ fn load_message(text: &str, st: &Stmt, report: &mut LoadReport) -> Option<Buildi
         msg,
         pending: Vec::new(),
         ext_mux: Vec::new(),
+        long_name: None,
+        long_signal_names: Vec::new(),
     };
     if whole {
         for (s, &(line, _, _)) in m.signals.iter().zip(st.sg.iter()) {
@@ -535,7 +541,10 @@ pub(crate) fn parse(text: &str) -> (Database, LoadReport) {
         match kw {
             "BO_" | "BU_" | "VERSION" | "VAL_TABLE_" => continue,
             "CM_" | "VAL_" | "SIG_VALTYPE_" | "SG_MUL_VAL_" => {}
-            "BA_" if chunk.contains("\"GenMsgCycleTime\"") => {}
+            "BA_"
+                if chunk.contains("\"GenMsgCycleTime\"")
+                    || chunk.contains("\"SystemMessageLongSymbol\"")
+                    || chunk.contains("\"SystemSignalLongSymbol\"") => {}
             other => {
                 *report.ignored.entry(other.to_string()).or_default() += 1;
                 continue;
@@ -665,7 +674,26 @@ pub(crate) fn parse(text: &str) -> (Database, LoadReport) {
                 None => report.skip(st.line, short.clone(), "SG_MUL_VAL_ for an unknown message"),
             }
         }
+        for a in d.attribute_values_signal {
+            // Vector tools cut names to 32 characters and keep the full one here.
+            if let (true, can_dbc::AttributeValue::String(long)) =
+                (a.name == "SystemSignalLongSymbol", a.value)
+            {
+                match find(a.message_id) {
+                    Some(i) => building[i].long_signal_names.push((a.signal_name, long)),
+                    None => report.skip(st.line, short.clone(), "long name for an unknown message"),
+                }
+            }
+        }
         for a in d.attribute_values_message {
+            if a.name == "SystemMessageLongSymbol" {
+                if let (Some(i), can_dbc::AttributeValue::String(long)) =
+                    (find(a.message_id), &a.value)
+                {
+                    building[i].long_name = Some(long.clone());
+                }
+                continue;
+            }
             if a.name != "GenMsgCycleTime" {
                 continue;
             }
@@ -684,6 +712,15 @@ pub(crate) fn parse(text: &str) -> (Database, LoadReport) {
     // Pass 3: resolve multiplexing, check layouts, index.
     for mut b in building {
         resolve_mux(&mut b, &mut report);
+        // Full names last: every statement above refers to the short ones.
+        for (short, long) in std::mem::take(&mut b.long_signal_names) {
+            if let Some(j) = b.msg.signal_by_name(&short) {
+                b.msg.signals[j].name = long;
+            }
+        }
+        if let Some(long) = b.long_name.take() {
+            b.msg.name = long;
+        }
         check_layout(&b.msg, &mut report);
         report.signals += b.msg.signals.len();
         db.messages.push(b.msg);

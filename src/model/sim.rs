@@ -274,7 +274,7 @@ impl Simulator {
         self.ctx.kappa_guess = aux.kappa;
         self.steps += 1;
         self.update_contact_flags();
-        if self.noise_on && self.steps % self.noise_stride == 0 {
+        if self.noise_on && self.steps.is_multiple_of(self.noise_stride) {
             self.exc.advance();
             self.ctx.noise = self.exc.noise;
         }

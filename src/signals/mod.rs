@@ -16,7 +16,9 @@
 //!   and the frame is used (its data are fresh and, where there is one, its checksum holds);
 //! * a frame too short for a mapped signal is counted and not used;
 //! * once no good frame has arrived for longer than the message's timeout, every quantity read
-//!   from it is invalid ([`Validity::TimedOut`]) and one timeout is counted.
+//!   from it is invalid ([`Validity::TimedOut`]) and one timeout is counted;
+//! * time follows the frames: a step back (a log restarting) is not an outage, and counter
+//!   tracking starts afresh after it.
 //!
 //! Not here: decoding bits (that is [`crate::dbc`]), reading frames ([`crate::source`]) or
 //! deciding what a braking event is (the daemon's business).
@@ -24,7 +26,7 @@
 pub mod checksum;
 pub mod mapping;
 
-use anyhow::{anyhow, bail};
+use anyhow::bail;
 use serde::Serialize;
 
 use crate::dbc::{Database, Message, Signal};
@@ -219,8 +221,8 @@ struct SteerQ {
 #[derive(Clone, Debug)]
 enum SpeedSrc {
     Signal(Sig),
-    /// Mean of up to four wheel speeds.
-    Wheels(heapless::Vec<Sig, 4>),
+    /// Mean of up to four wheel speeds (filled once, at construction).
+    Wheels(Vec<Sig>),
 }
 
 #[derive(Clone, Debug)]
@@ -465,12 +467,11 @@ impl Mapper {
                 SpeedSrc::Signal(sig)
             }
             None => {
-                let mut v = heapless::Vec::new();
+                let mut v = Vec::with_capacity(sp.wheel_signals.len());
                 for w in &sp.wheel_signals {
                     let sig = r.signal("speed.wheel_signals", msg, w)?;
                     r.check_unit("speed.unit", &sig, uname, ok);
-                    v.push(sig)
-                        .map_err(|_| anyhow!("speed.wheel_signals: at most 4"))?;
+                    v.push(sig);
                 }
                 SpeedSrc::Wheels(v)
             }
@@ -571,13 +572,18 @@ impl Mapper {
 
     /// Advance the clock to `t_ns` without a frame (e.g. a live source that went quiet), so that
     /// silent messages are marked timed out and counted. Frames advance it themselves.
+    ///
+    /// The clock follows the frames even backwards (logs restart, sources get concatenated): a
+    /// message last seen "in the future" is not timed out, so a step back in time never counts
+    /// as an outage. It does restart counter tracking: what follows is another recording.
     pub fn advance(&mut self, t_ns: i64) {
-        let now = match self.now_ns {
-            Some(n) if n >= t_ns => n,
-            _ => t_ns,
-        };
+        let now = t_ns;
+        let went_back = self.now_ns.is_some_and(|prev| now < prev);
         self.now_ns = Some(now);
         for s in &mut self.slots {
+            if went_back {
+                s.last_counter = None;
+            }
             if let Some(last) = s.last_good_ns {
                 if !s.timed_out && now - last > s.timeout_ns {
                     s.timed_out = true;
@@ -769,7 +775,7 @@ impl Mapper {
         }
     }
 
-    /// Latest frame time seen (or given to [`Mapper::advance`]).
+    /// Time of the last frame (or of the last [`Mapper::advance`]).
     pub fn now_ns(&self) -> Option<i64> {
         self.now_ns
     }

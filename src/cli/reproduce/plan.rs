@@ -118,7 +118,10 @@ impl Plan {
             for &c in &self.speed_c {
                 for &v in &self.speeds {
                     add(Case::new(c, v, JointMode::Dual, seed));
-                    add(Case::new(c, v, JointMode::Single, seed));
+                    // Dual vs single across speeds at the reference clearance only.
+                    if c == 0.1 {
+                        add(Case::new(c, v, JointMode::Single, seed));
+                    }
                 }
             }
             for &k_t in &self.k_t {

@@ -126,6 +126,9 @@ pub struct Outcome {
     pub poincare_distinct: (usize, usize),
     /// Finite-time Lyapunov exponent (1/s), if asked for and the fit succeeded.
     pub lyapunov_per_s: Option<f64>,
+    /// The twins separated to saturation before the fit window held 0.3 s, so the exponent is
+    /// the mean growth rate from t = 0 (see `analysis::chaos::LyapunovFit::early`).
+    pub lyapunov_early: bool,
     /// Thread CPU time of the main run (s).
     pub cpu_s: f64,
     /// Window [t_b, t_stop + 0.3 s] in seconds.
@@ -272,7 +275,7 @@ pub fn run_case(case: &Case) -> Result<Outcome> {
     let poincare_distinct = (count_distinct(&pts, tol), pts.len());
     let poincare: Vec<(f64, f64)> = pts.iter().map(|p| (p[0], p[1])).collect();
 
-    let lyapunov_per_s = if case.lyapunov {
+    let lyap_fit = if case.lyapunov {
         let reference = lyapunov_state(&tr);
         let runner = |eps: f64| -> Result<Trajectory> {
             if eps == 0.0 {
@@ -281,9 +284,7 @@ pub fn run_case(case: &Case) -> Result<Outcome> {
             let twin = run(&p, &case.scenario(&p, 1.0 + eps))?;
             Ok(lyapunov_state(&twin))
         };
-        lyapunov_twin_runs(runner, 1e-9, &LyapunovOptions::default())
-            .ok()
-            .map(|f| f.lambda)
+        lyapunov_twin_runs(runner, 1e-9, &LyapunovOptions::default()).ok()
     } else {
         None
     };
@@ -302,7 +303,8 @@ pub fn run_case(case: &Case) -> Result<Outcome> {
         band_15_18,
         poincare,
         poincare_distinct,
-        lyapunov_per_s,
+        lyapunov_per_s: lyap_fit.map(|f| f.lambda),
+        lyapunov_early: lyap_fit.is_some_and(|f| f.early),
         cpu_s,
         window_s: (t0, t1),
         trace: case.keep_trace.then_some(tr),

@@ -1,0 +1,402 @@
+//! Maintenance alerts (issue 6 item 2): lifecycle, hysteresis, de-duplication, evidence and the
+//! maintenance guidance of the source study.
+//!
+//! Two conditions, both evaluated once per finished braking event:
+//! * `shimmy_55kmh`: of the last `shimmy_window` braking events that began inside the speed
+//!   window (default 50–60 km/h), at least `shimmy_confirm` show an estimated steering-wheel
+//!   shimmy amplitude above `shimmy_deg` (0.2°). It clears only when at most
+//!   `shimmy_clear_max` of them exceed the lower `shimmy_clear_deg`.
+//! * `clearance`: the observer's posterior gives P(c > `clearance_mm`) ≥
+//!   `clearance_probability` (one noisy event cannot do this; the credible interval must). It
+//!   clears when that probability falls below `clearance_clear_probability`.
+//!
+//! De-duplication: while a condition persists there is one open alert of its kind, with a
+//! stable id; every new piece of evidence produces an `updated` transition of that alert, not a
+//! new alert. The book is serialisable so open alerts survive a restart.
+//!
+//! Guidance: [`guidance`] quotes only what the article's conclusions say (replacement beyond
+//! 0.1 mm, inspection every 30,000 km below 60,000 km and every 15,000 km above, immediate
+//! special inspection above 0.2° at 55 km/h, lubrication every 15,000 km); it invents no
+//! other number.
+//!
+//! What it is not: detection or estimation (the observer's) or delivery (journal, bus, MQTT).
+
+use std::collections::VecDeque;
+
+use serde::{Deserialize, Serialize};
+
+use crate::daemon::config::AlertsSection;
+use crate::daemon::pipeline::{Estimate, EventSummary};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Kind {
+    /// Steering-wheel shimmy above the threshold while braking in the speed window.
+    #[serde(rename = "shimmy_55kmh")]
+    Shimmy55,
+    /// Estimated joint clearance above the replacement threshold.
+    Clearance,
+}
+
+impl Kind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Kind::Shimmy55 => "shimmy_55kmh",
+            Kind::Clearance => "clearance",
+        }
+    }
+}
+
+/// One braking event cited as evidence.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EventEvidence {
+    pub t_start: f64,
+    pub t_end: f64,
+    pub v0_kmh: f64,
+    pub decel_g: f64,
+    pub sw_amplitude_deg: Option<f64>,
+    pub peak_sw_bp_deg: Option<f64>,
+    pub odometer_km: f64,
+}
+
+impl From<&EventSummary> for EventEvidence {
+    fn from(e: &EventSummary) -> Self {
+        EventEvidence {
+            t_start: e.t_start,
+            t_end: e.t_end,
+            v0_kmh: e.v0_kmh,
+            decel_g: e.decel_g,
+            sw_amplitude_deg: e.sw_amplitude_deg,
+            peak_sw_bp_deg: e.peak_sw_bp_deg,
+            odometer_km: e.odometer_km,
+        }
+    }
+}
+
+/// Why an alert is raised.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Evidence {
+    /// The braking events behind the condition (for the shimmy alert: the window's events).
+    pub events: Vec<EventEvidence>,
+    /// The clearance estimate when the alert was last updated.
+    pub estimate: Option<Estimate>,
+    /// The threshold that was crossed (deg or mm, per kind).
+    pub threshold: f64,
+    /// Shimmy alert: events above threshold out of events in the window.
+    pub hits: Option<[usize; 2]>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Alert {
+    pub id: u64,
+    pub kind: Kind,
+    /// Log time of the event that raised it / last updated it (s).
+    pub t_raised: f64,
+    pub t_updated: f64,
+    pub odometer_km_raised: f64,
+    /// Updates since raised (persisting condition, new evidence).
+    pub updates: u32,
+    pub summary: String,
+    pub guidance: String,
+    pub evidence: Evidence,
+}
+
+/// What happened to an alert with one event.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(tag = "transition", rename_all = "snake_case")]
+pub enum Transition {
+    Raised(Alert),
+    Updated(Alert),
+    Cleared(Alert),
+}
+
+/// The open alerts and the memory the rules need.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct AlertBook {
+    pub open: Vec<Alert>,
+    pub next_id: u64,
+    /// The last events in the shimmy speed window (bounded by the configured window).
+    pub shimmy_window: VecDeque<EventEvidence>,
+}
+
+/// Maintenance guidance of the source study's conclusions, for an alert of `kind` at odometer
+/// `odometer_km`.
+pub fn guidance(kind: Kind, cfg: &AlertsSection, odometer_km: f64) -> String {
+    let interval = if odometer_km < 60_000.0 {
+        "every 30,000 km (vehicle below 60,000 km)"
+    } else {
+        "every 15,000 km (vehicle above 60,000 km)"
+    };
+    let head = match kind {
+        Kind::Shimmy55 => format!(
+            "Steering-wheel shimmy above {:.2} deg while braking at {:.0}-{:.0} km/h: the study \
+             calls for an immediate special inspection of the steering joint clearances.",
+            cfg.shimmy_deg, cfg.shimmy_speed_min_kmh, cfg.shimmy_speed_max_kmh
+        ),
+        Kind::Clearance => format!(
+            "Estimated steering-joint clearance above {:.2} mm: the study recommends replacing \
+             the tie-rod / trapezoid-arm joints once wear clearance exceeds 0.1 mm.",
+            cfg.clearance_mm
+        ),
+    };
+    format!(
+        "{head} Routine: inspect steering clearances {interval}; lubricate the clearance joints \
+         every 15,000 km to slow clearance growth. New-joint manufacturing clearance should be \
+         within 0.07 mm (the study's bifurcation threshold)."
+    )
+}
+
+/// The study's maintenance recommendations, stated conditionally (for reports without an alert).
+pub fn routine_guidance(cfg: &AlertsSection, odometer_km: f64) -> Vec<String> {
+    let interval = if odometer_km < 60_000.0 {
+        "every 30,000 km while the vehicle is below 60,000 km (then every 15,000 km)"
+    } else {
+        "every 15,000 km (vehicle above 60,000 km)"
+    };
+    vec![
+        "Replace the tie-rod / trapezoid-arm joints promptly once their wear clearance exceeds 0.1 mm.".into(),
+        format!(
+            "Inspect the steering clearances at once if steering-wheel shimmy exceeds {:.2} deg when braking at {:.0}-{:.0} km/h (the study: 0.2 deg at 55 km/h).",
+            cfg.shimmy_deg, cfg.shimmy_speed_min_kmh, cfg.shimmy_speed_max_kmh
+        ),
+        format!("Inspect the steering clearances {interval}."),
+        "Lubricate the clearance joints every 15,000 km to slow clearance growth.".into(),
+        "New joints: manufacturing clearance within 0.07 mm (the study's bifurcation threshold).".into(),
+    ]
+}
+
+fn in_window(cfg: &AlertsSection, e: &EventSummary) -> bool {
+    e.used && (cfg.shimmy_speed_min_kmh..=cfg.shimmy_speed_max_kmh).contains(&e.v0_kmh)
+}
+
+impl AlertBook {
+    fn open_index(&self, kind: Kind) -> Option<usize> {
+        self.open.iter().position(|a| a.kind == kind)
+    }
+
+    pub fn is_open(&self, kind: Kind) -> bool {
+        self.open_index(kind).is_some()
+    }
+
+    /// Evaluates both rules after one finished event, with the estimate after it. Returns the
+    /// transitions (at most one per kind).
+    pub fn on_event(
+        &mut self,
+        cfg: &AlertsSection,
+        ev: &EventSummary,
+        est: Option<&Estimate>,
+    ) -> Vec<Transition> {
+        let mut out = Vec::new();
+        if in_window(cfg, ev) && ev.sw_amplitude_deg.is_some() {
+            while self.shimmy_window.len() >= cfg.shimmy_window {
+                self.shimmy_window.pop_front();
+            }
+            self.shimmy_window.push_back(ev.into());
+            let amp = |e: &EventEvidence| e.sw_amplitude_deg.unwrap_or(0.0);
+            let n = self.shimmy_window.len();
+            let hits = self
+                .shimmy_window
+                .iter()
+                .filter(|e| amp(e) > cfg.shimmy_deg)
+                .count();
+            let soft = self
+                .shimmy_window
+                .iter()
+                .filter(|e| amp(e) > cfg.shimmy_clear_deg)
+                .count();
+            let evidence = Evidence {
+                events: self.shimmy_window.iter().cloned().collect(),
+                estimate: est.cloned(),
+                threshold: cfg.shimmy_deg,
+                hits: Some([hits, n]),
+            };
+            let summary = format!(
+                "{hits} of the last {n} braking events at {:.0}-{:.0} km/h show steering-wheel \
+                 shimmy above {:.2} deg (largest {:.2} deg)",
+                cfg.shimmy_speed_min_kmh,
+                cfg.shimmy_speed_max_kmh,
+                cfg.shimmy_deg,
+                self.shimmy_window.iter().map(amp).fold(0.0, f64::max)
+            );
+            let raise = hits >= cfg.shimmy_confirm;
+            let clear = soft <= cfg.shimmy_clear_max;
+            out.extend(self.apply(cfg, Kind::Shimmy55, raise, clear, ev, summary, evidence));
+        }
+        if let Some(e) = est {
+            if let Some(p) = e.p_above {
+                let raise = p >= cfg.clearance_probability;
+                let clear = p < cfg.clearance_clear_probability;
+                let summary = match (e.clearance_mm, e.interval_mm) {
+                    (Some(c), Some([lo, hi])) => format!(
+                        "estimated clearance {c:.3} mm (90 % interval {lo:.3}-{hi:.3} mm), \
+                         P(> {:.2} mm) = {:.0} % over {} braking events",
+                        cfg.clearance_mm,
+                        p * 100.0,
+                        e.events_used
+                    ),
+                    _ => format!(
+                        "P(clearance > {:.2} mm) = {:.0} % over {} braking events",
+                        cfg.clearance_mm,
+                        p * 100.0,
+                        e.events_used
+                    ),
+                };
+                let evidence = Evidence {
+                    events: vec![ev.into()],
+                    estimate: Some(e.clone()),
+                    threshold: cfg.clearance_mm,
+                    hits: None,
+                };
+                out.extend(self.apply(cfg, Kind::Clearance, raise, clear, ev, summary, evidence));
+            }
+        }
+        out
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn apply(
+        &mut self,
+        cfg: &AlertsSection,
+        kind: Kind,
+        raise: bool,
+        clear: bool,
+        ev: &EventSummary,
+        summary: String,
+        evidence: Evidence,
+    ) -> Option<Transition> {
+        match self.open_index(kind) {
+            None if raise => {
+                self.next_id += 1;
+                let a = Alert {
+                    id: self.next_id,
+                    kind,
+                    t_raised: ev.t_end,
+                    t_updated: ev.t_end,
+                    odometer_km_raised: ev.odometer_km,
+                    updates: 0,
+                    summary,
+                    guidance: guidance(kind, cfg, ev.odometer_km),
+                    evidence,
+                };
+                self.open.push(a.clone());
+                Some(Transition::Raised(a))
+            }
+            None => None,
+            Some(i) if clear => {
+                let mut a = self.open.remove(i);
+                a.t_updated = ev.t_end;
+                a.summary = summary;
+                a.evidence = evidence;
+                Some(Transition::Cleared(a))
+            }
+            Some(i) => {
+                let a = &mut self.open[i];
+                a.t_updated = ev.t_end;
+                a.updates += 1;
+                a.summary = summary;
+                a.evidence = evidence;
+                a.guidance = guidance(kind, cfg, ev.odometer_km);
+                Some(Transition::Updated(a.clone()))
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ev(t: f64, v: f64, amp: f64) -> EventSummary {
+        EventSummary {
+            t_start: t,
+            t_end: t + 2.0,
+            v0_kmh: v,
+            decel_g: 0.5,
+            peak_sw_bp_deg: Some(amp * 1.2),
+            sw_amplitude_deg: Some(amp),
+            used: true,
+            unused_reason: None,
+            odometer_km: t / 100.0,
+        }
+    }
+
+    fn kinds(ts: &[Transition]) -> Vec<(&'static str, Kind)> {
+        ts.iter()
+            .map(|t| match t {
+                Transition::Raised(a) => ("raised", a.kind),
+                Transition::Updated(a) => ("updated", a.kind),
+                Transition::Cleared(a) => ("cleared", a.kind),
+            })
+            .collect()
+    }
+
+    #[test]
+    fn shimmy_needs_confirmation_then_is_one_alert_then_clears_with_hysteresis() {
+        let cfg = AlertsSection::default();
+        let mut b = AlertBook::default();
+        assert!(b.on_event(&cfg, &ev(0.0, 55.0, 0.3), None).is_empty());
+        // Outside the speed window: ignored.
+        assert!(b.on_event(&cfg, &ev(10.0, 80.0, 0.5), None).is_empty());
+        let t = b.on_event(&cfg, &ev(20.0, 52.0, 0.25), None);
+        assert_eq!(kinds(&t), [("raised", Kind::Shimmy55)]);
+        let id = b.open[0].id;
+        for k in 0..6 {
+            let t = b.on_event(&cfg, &ev(30.0 + k as f64, 55.0, 0.17), None);
+            // 0.17 deg is below the raise threshold but above the clear threshold: the alert
+            // persists as long as any event in the window is above 0.15 deg.
+            assert_eq!(kinds(&t), [("updated", Kind::Shimmy55)], "step {k}");
+            assert_eq!(b.open.len(), 1);
+            assert_eq!(b.open[0].id, id);
+        }
+        for k in 0..4 {
+            let t = b.on_event(&cfg, &ev(40.0 + k as f64, 55.0, 0.05), None);
+            assert_eq!(kinds(&t), [("updated", Kind::Shimmy55)]);
+        }
+        let t = b.on_event(&cfg, &ev(50.0, 55.0, 0.05), None);
+        assert_eq!(kinds(&t), [("cleared", Kind::Shimmy55)]);
+        assert!(b.open.is_empty());
+    }
+
+    #[test]
+    fn clearance_follows_probability_with_hysteresis_and_carries_evidence() {
+        let cfg = AlertsSection::default();
+        let mut b = AlertBook::default();
+        let est = |p: f64| Estimate {
+            clearance_mm: Some(0.15),
+            interval_mm: Some([0.12, 0.19]),
+            detectable: true,
+            below_mm: None,
+            p_above: Some(p),
+            events_used: 7,
+        };
+        assert!(b
+            .on_event(&cfg, &ev(0.0, 80.0, 0.1), Some(&est(0.89)))
+            .is_empty());
+        let t = b.on_event(&cfg, &ev(1.0, 80.0, 0.1), Some(&est(0.95)));
+        assert_eq!(kinds(&t), [("raised", Kind::Clearance)]);
+        let Transition::Raised(a) = &t[0] else {
+            panic!()
+        };
+        assert_eq!(
+            a.evidence.estimate.as_ref().unwrap().interval_mm,
+            Some([0.12, 0.19])
+        );
+        assert_eq!(a.evidence.events[0].v0_kmh, 80.0);
+        assert!(a.guidance.contains("0.1 mm"));
+        assert!(a.summary.contains("0.120-0.190"));
+        let t = b.on_event(&cfg, &ev(2.0, 80.0, 0.1), Some(&est(0.6)));
+        assert_eq!(kinds(&t), [("updated", Kind::Clearance)]);
+        let t = b.on_event(&cfg, &ev(3.0, 80.0, 0.1), Some(&est(0.4)));
+        assert_eq!(kinds(&t), [("cleared", Kind::Clearance)]);
+    }
+
+    #[test]
+    fn guidance_interval_follows_mileage() {
+        let cfg = AlertsSection::default();
+        assert!(guidance(Kind::Clearance, &cfg, 10_000.0).contains("every 30,000 km"));
+        assert!(
+            guidance(Kind::Clearance, &cfg, 90_000.0).contains("every 15,000 km (vehicle above")
+        );
+    }
+}

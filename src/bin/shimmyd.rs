@@ -1,0 +1,94 @@
+//! `shimmyd`: the shimmy-monitor gateway daemon. See `shimmyd --help` and `shimmy::daemon`.
+
+use std::path::PathBuf;
+
+use clap::Parser;
+use shimmy::daemon::config::Config;
+use shimmy::daemon::run::{run, Options};
+
+/// shimmyd watches a vehicle's CAN bus (SocketCAN, read-only) or replays CAN logs, detects
+/// braking events, estimates steering-joint clearance, raises maintenance alerts and writes
+/// them to a crash-safe journal.
+///
+/// Live: `shimmyd --config /etc/shimmyd.toml` reads the interfaces of `[input]`. Replay:
+/// `shimmyd --config FILE --replay LOG...` plays the logs (candump -L, ASC, BLF) at their
+/// recorded timing, or as fast as possible with `--fast`, then exits.
+///
+/// Outputs: the journal (`outputs.journal_dir`, JSON lines with sequence numbers and CRCs; read
+/// it with `shimmy report --journal DIR`), the state (`outputs.state_dir`), counters on stderr
+/// every `log.counters_interval_s`. SIGTERM stops cleanly, SIGHUP reloads `[alerts]` and `[log]`.
+/// No network listener is opened; the bus is written only when `outputs.transmit = true`.
+#[derive(Parser, Debug)]
+#[command(name = "shimmyd", version, verbatim_doc_comment)]
+struct Cli {
+    /// The configuration file (see config/shimmyd.toml).
+    #[arg(long, value_name = "FILE", required_unless_present = "journal_stress")]
+    config: Option<PathBuf>,
+    /// Replay these logs instead of reading the live interfaces, then exit.
+    #[arg(long, value_name = "LOG", num_args = 1..)]
+    replay: Vec<PathBuf>,
+    /// With --replay: as fast as possible instead of at recorded timing.
+    #[arg(long, requires = "replay")]
+    fast: bool,
+    /// Overrides outputs.state_dir.
+    #[arg(long, value_name = "DIR")]
+    state_dir: Option<PathBuf>,
+    /// Check the configuration and exit.
+    #[arg(long)]
+    check: bool,
+    /// Test helper (crash tests): append numbered records to the journal in DIR forever,
+    /// printing each acknowledged (fsynced) sequence number on stdout.
+    #[arg(long, value_name = "DIR", hide = true)]
+    journal_stress: Option<PathBuf>,
+}
+
+fn journal_stress(dir: &std::path::Path) -> anyhow::Result<()> {
+    use shimmy::journal::{FsyncPolicy, Journal, JournalConfig};
+    use std::io::Write;
+    let (mut j, rec) = Journal::open(
+        dir,
+        JournalConfig {
+            fsync: FsyncPolicy::Always,
+            rotate_bytes: 8 * 1024,
+        },
+    )?;
+    let out = std::io::stdout();
+    let mut out = out.lock();
+    writeln!(out, "recovered {}", serde_json::to_string(&rec)?)?;
+    let pad = "x".repeat(100);
+    loop {
+        let seq = j.next_seq();
+        j.append(&serde_json::json!({"type": "stress", "n": seq, "pad": pad}))?;
+        if j.durable_seq() == Some(seq) {
+            writeln!(out, "ack {seq}")?;
+            out.flush()?;
+        }
+    }
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let result = if let Some(dir) = &cli.journal_stress {
+        journal_stress(dir)
+    } else {
+        let config = cli.config.expect("clap requires --config");
+        if cli.check {
+            Config::load(&config).map(|_| eprintln!("shimmyd: {} is valid", config.display()))
+        } else {
+            run(
+                Options {
+                    config,
+                    replay: cli.replay,
+                    fast: cli.fast,
+                    state_dir: cli.state_dir,
+                    journal_dir: None,
+                },
+                &shimmy::daemon::stage::for_config,
+            )
+        }
+    };
+    if let Err(e) = result {
+        eprintln!("shimmyd: error: {e:#}");
+        std::process::exit(1);
+    }
+}

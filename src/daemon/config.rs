@@ -1,0 +1,382 @@
+//! shimmyd's configuration: one TOML file (config/shimmyd.toml is the documented default).
+//!
+//! What it is: the serde types (every table `deny_unknown_fields`, so a typo is an error, not a
+//! silently ignored key) and [`Config::load`], which parses, resolves relative paths against the
+//! file's directory and checks what serde cannot express. Every error names the key and the
+//! problem, e.g. `alerts.shimmy_deg: must be > 0 (got -0.2)`.
+//!
+//! What it is not: the loading of the files it points to (DBC, mapping, vehicle): the daemon does
+//! that at start-up and reports their errors with their own file names.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use serde::{Deserialize, Serialize};
+
+use crate::journal::{FsyncPolicy, JournalConfig};
+
+/// The whole file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    pub input: Input,
+    #[serde(default)]
+    pub vehicle: VehicleSection,
+    #[serde(default)]
+    pub events: EventsSection,
+    #[serde(default)]
+    pub alerts: AlertsSection,
+    pub outputs: Outputs,
+    #[serde(default)]
+    pub log: LogSection,
+}
+
+/// `[input]`: where frames come from and how to read them.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Input {
+    /// SocketCAN interfaces read live (read-only). Ignored when `--replay` is given.
+    #[serde(default)]
+    pub interfaces: Vec<String>,
+    /// Logs replayed when no interface is configured and `--replay` is not given.
+    #[serde(default)]
+    pub replay: Vec<PathBuf>,
+    /// Replay as fast as possible instead of at recorded timing.
+    #[serde(default)]
+    pub fast: bool,
+    /// The DBC describing the bus.
+    pub dbc: PathBuf,
+    /// The signal mapping (config/mappings/*.toml).
+    pub mapping: PathBuf,
+}
+
+/// `[vehicle]`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VehicleSection {
+    /// Vehicle parameters of the shimmy model (config/vehicle/*.toml); MODEL.md §9 defaults when
+    /// absent.
+    #[serde(default)]
+    pub params: Option<PathBuf>,
+    /// The observer's response table (`shimmy calibrate`); without it no clearance estimate is
+    /// made (the shimmy-amplitude alert still works).
+    #[serde(default)]
+    pub table: Option<PathBuf>,
+    /// Odometer at first start when no state exists yet (km).
+    #[serde(default)]
+    pub initial_odometer_km: f64,
+}
+
+/// `[events]`: which brake applications count (article §2.1.2 validity range).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EventsSection {
+    pub min_speed_kmh: f64,
+    pub max_speed_kmh: f64,
+    pub min_decel_g: f64,
+    pub max_decel_g: f64,
+    /// Largest |steering-wheel angle| of a "straight" event (deg).
+    pub max_steer_deg: f64,
+}
+
+impl Default for EventsSection {
+    fn default() -> Self {
+        EventsSection {
+            min_speed_kmh: 20.0,
+            max_speed_kmh: 120.0,
+            min_decel_g: 0.3,
+            max_decel_g: 0.8,
+            max_steer_deg: 15.0,
+        }
+    }
+}
+
+/// `[alerts]`: the two maintenance alerts and their hysteresis.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AlertsSection {
+    /// Steering-wheel shimmy amplitude that raises the shimmy alert (deg), article §4: 0.2°.
+    pub shimmy_deg: f64,
+    /// Initial-speed window of the braking events the shimmy alert looks at (km/h).
+    pub shimmy_speed_min_kmh: f64,
+    pub shimmy_speed_max_kmh: f64,
+    /// Raise when at least `shimmy_confirm` of the last `shimmy_window` events in the speed
+    /// window are above `shimmy_deg`.
+    pub shimmy_confirm: usize,
+    pub shimmy_window: usize,
+    /// Clear only when at most `shimmy_clear_max` of the last `shimmy_window` events are above
+    /// `shimmy_clear_deg` (hysteresis: lower than `shimmy_deg`).
+    pub shimmy_clear_deg: f64,
+    pub shimmy_clear_max: usize,
+    /// Clearance that raises the clearance alert (mm), article §4: replace beyond 0.1 mm.
+    pub clearance_mm: f64,
+    /// Raise when P(clearance > clearance_mm) is at least this ...
+    pub clearance_probability: f64,
+    /// ... clear when it falls below this (hysteresis).
+    pub clearance_clear_probability: f64,
+}
+
+impl Default for AlertsSection {
+    fn default() -> Self {
+        AlertsSection {
+            shimmy_deg: 0.2,
+            shimmy_speed_min_kmh: 50.0,
+            shimmy_speed_max_kmh: 60.0,
+            shimmy_confirm: 2,
+            shimmy_window: 5,
+            shimmy_clear_deg: 0.15,
+            shimmy_clear_max: 0,
+            clearance_mm: 0.1,
+            clearance_probability: 0.9,
+            clearance_clear_probability: 0.5,
+        }
+    }
+}
+
+/// `[outputs]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Outputs {
+    /// Directory of the event/alert journal.
+    pub journal_dir: PathBuf,
+    /// `"always"` (fsync every record) or `"interval"` (every `fsync_interval_ms`).
+    #[serde(default = "default_fsync")]
+    pub fsync: String,
+    #[serde(default = "default_fsync_ms")]
+    pub fsync_interval_ms: u64,
+    /// Rotate the journal's current file at this size (MiB).
+    #[serde(default = "default_rotate_mib")]
+    pub rotate_mib: f64,
+    /// Directory of the persisted state (estimate, events, odometer); `--state-dir` overrides.
+    pub state_dir: PathBuf,
+    /// Send SHIMMY_01 of dbc/shimmy_reference.dbc on the bus. Off by default: the daemon is
+    /// read-only unless this is explicitly true.
+    #[serde(default)]
+    pub transmit: bool,
+    /// Interface to transmit on (required when `transmit = true`).
+    #[serde(default)]
+    pub transmit_interface: Option<String>,
+}
+
+fn default_fsync() -> String {
+    "always".into()
+}
+fn default_fsync_ms() -> u64 {
+    200
+}
+fn default_rotate_mib() -> f64 {
+    16.0
+}
+
+/// `[log]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LogSection {
+    /// Period of the counters line on stderr (s); 60 = per minute.
+    pub counters_interval_s: u64,
+}
+
+impl Default for LogSection {
+    fn default() -> Self {
+        LogSection {
+            counters_interval_s: 60,
+        }
+    }
+}
+
+fn positive(key: &str, v: f64) -> anyhow::Result<()> {
+    if !(v.is_finite() && v > 0.0) {
+        bail!("{key}: must be > 0 (got {v})");
+    }
+    Ok(())
+}
+
+fn ordered(lo_key: &str, lo: f64, hi_key: &str, hi: f64) -> anyhow::Result<()> {
+    if !(lo < hi) {
+        bail!("{lo_key} ({lo}) must be below {hi_key} ({hi})");
+    }
+    Ok(())
+}
+
+fn probability(key: &str, p: f64) -> anyhow::Result<()> {
+    if !(p > 0.0 && p < 1.0) {
+        bail!("{key}: must be a probability strictly between 0 and 1 (got {p})");
+    }
+    Ok(())
+}
+
+impl Config {
+    /// Parses `text`; relative paths are resolved against `base` (the file's directory).
+    pub fn from_toml_str(text: &str, base: &Path) -> anyhow::Result<Config> {
+        let mut cfg: Config = toml::from_str(text).map_err(|e| anyhow::anyhow!("{e}"))?;
+        cfg.resolve(base);
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Reads, parses and checks a config file; errors name the file, the key and the problem.
+    pub fn load(path: &Path) -> anyhow::Result<Config> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read config {}", path.display()))?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        Config::from_toml_str(&text, base)
+            .with_context(|| format!("invalid config {}", path.display()))
+    }
+
+    fn resolve(&mut self, base: &Path) {
+        let fix = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        };
+        fix(&mut self.input.dbc);
+        fix(&mut self.input.mapping);
+        self.input.replay.iter_mut().for_each(fix);
+        if let Some(p) = self.vehicle.params.as_mut() {
+            fix(p);
+        }
+        if let Some(p) = self.vehicle.table.as_mut() {
+            fix(p);
+        }
+        fix(&mut self.outputs.journal_dir);
+        fix(&mut self.outputs.state_dir);
+    }
+
+    /// The checks serde cannot express.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        for (key, p) in [
+            ("input.dbc", &self.input.dbc),
+            ("input.mapping", &self.input.mapping),
+        ] {
+            if !p.is_file() {
+                bail!("{key}: file {} does not exist", p.display());
+            }
+        }
+        for (key, p) in [
+            ("vehicle.params", &self.vehicle.params),
+            ("vehicle.table", &self.vehicle.table),
+        ] {
+            if let Some(p) = p {
+                if !p.is_file() {
+                    bail!("{key}: file {} does not exist", p.display());
+                }
+            }
+        }
+        for (i, name) in self.input.interfaces.iter().enumerate() {
+            if name.is_empty() || name.len() > 15 || name.contains('/') {
+                bail!(
+                    "input.interfaces[{i}]: `{name}` is not a network interface name (1-15 characters, no '/')"
+                );
+            }
+        }
+        if !self.vehicle.initial_odometer_km.is_finite() || self.vehicle.initial_odometer_km < 0.0 {
+            bail!(
+                "vehicle.initial_odometer_km: must be >= 0 (got {})",
+                self.vehicle.initial_odometer_km
+            );
+        }
+        let e = &self.events;
+        positive("events.min_speed_kmh", e.min_speed_kmh)?;
+        positive("events.min_decel_g", e.min_decel_g)?;
+        positive("events.max_steer_deg", e.max_steer_deg)?;
+        ordered(
+            "events.min_speed_kmh",
+            e.min_speed_kmh,
+            "events.max_speed_kmh",
+            e.max_speed_kmh,
+        )?;
+        ordered(
+            "events.min_decel_g",
+            e.min_decel_g,
+            "events.max_decel_g",
+            e.max_decel_g,
+        )?;
+        let a = &self.alerts;
+        positive("alerts.shimmy_deg", a.shimmy_deg)?;
+        positive("alerts.shimmy_clear_deg", a.shimmy_clear_deg)?;
+        if a.shimmy_clear_deg > a.shimmy_deg {
+            bail!(
+                "alerts.shimmy_clear_deg ({}) must not exceed alerts.shimmy_deg ({}): the alert would flap",
+                a.shimmy_clear_deg,
+                a.shimmy_deg
+            );
+        }
+        positive("alerts.shimmy_speed_min_kmh", a.shimmy_speed_min_kmh)?;
+        ordered(
+            "alerts.shimmy_speed_min_kmh",
+            a.shimmy_speed_min_kmh,
+            "alerts.shimmy_speed_max_kmh",
+            a.shimmy_speed_max_kmh,
+        )?;
+        if a.shimmy_window == 0 || a.shimmy_window > 64 {
+            bail!(
+                "alerts.shimmy_window: must be 1..=64 (got {})",
+                a.shimmy_window
+            );
+        }
+        if a.shimmy_confirm == 0 || a.shimmy_confirm > a.shimmy_window {
+            bail!(
+                "alerts.shimmy_confirm: must be 1..=alerts.shimmy_window ({}) (got {})",
+                a.shimmy_window,
+                a.shimmy_confirm
+            );
+        }
+        if a.shimmy_clear_max >= a.shimmy_confirm {
+            bail!(
+                "alerts.shimmy_clear_max ({}) must be below alerts.shimmy_confirm ({}): the alert would flap",
+                a.shimmy_clear_max,
+                a.shimmy_confirm
+            );
+        }
+        positive("alerts.clearance_mm", a.clearance_mm)?;
+        probability("alerts.clearance_probability", a.clearance_probability)?;
+        probability(
+            "alerts.clearance_clear_probability",
+            a.clearance_clear_probability,
+        )?;
+        if a.clearance_clear_probability >= a.clearance_probability {
+            bail!(
+                "alerts.clearance_clear_probability ({}) must be below alerts.clearance_probability ({})",
+                a.clearance_clear_probability,
+                a.clearance_probability
+            );
+        }
+        let o = &self.outputs;
+        match o.fsync.as_str() {
+            "always" => {}
+            "interval" => {
+                if o.fsync_interval_ms == 0 || o.fsync_interval_ms > 60_000 {
+                    bail!(
+                        "outputs.fsync_interval_ms: must be 1..=60000 (got {})",
+                        o.fsync_interval_ms
+                    );
+                }
+            }
+            other => bail!("outputs.fsync: must be \"always\" or \"interval\" (got \"{other}\")"),
+        }
+        if !(o.rotate_mib.is_finite() && o.rotate_mib >= 0.001 && o.rotate_mib <= 4096.0) {
+            bail!(
+                "outputs.rotate_mib: must be 0.001..=4096 (got {})",
+                o.rotate_mib
+            );
+        }
+        if o.transmit && o.transmit_interface.is_none() {
+            bail!("outputs.transmit_interface: required when outputs.transmit = true");
+        }
+        if self.log.counters_interval_s == 0 {
+            bail!("log.counters_interval_s: must be >= 1");
+        }
+        Ok(())
+    }
+
+    /// The journal settings of `[outputs]`.
+    pub fn journal(&self) -> JournalConfig {
+        JournalConfig {
+            fsync: match self.outputs.fsync.as_str() {
+                "interval" => FsyncPolicy::IntervalMs(self.outputs.fsync_interval_ms),
+                _ => FsyncPolicy::Always,
+            },
+            rotate_bytes: (self.outputs.rotate_mib * 1024.0 * 1024.0) as u64,
+        }
+    }
+}

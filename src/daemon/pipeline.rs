@@ -1,0 +1,93 @@
+//! The seam between the daemon and the clearance observer (issue 5): a small trait,
+//! [`EventStage`], fed one [`Sample`] per accepted mapped update, handing back finished braking
+//! events and the current clearance estimate.
+//!
+//! What it is: the contract the daemon, the alerts and the report are written against, plus
+//! [`NoObserver`] for builds/configurations without an observer (it detects nothing and
+//! estimates nothing — it never invents an estimate). The adapter for
+//! `shimmy::observer::Observer` implements this trait once the observer is on main.
+//!
+//! What it is not: a detector or an estimator.
+
+use serde::{Deserialize, Serialize};
+
+/// One mapped update, SI units. Fields are `Some` only when freshly received with this update.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Sample {
+    pub t_ns: i64,
+    /// Steering-wheel angle δ_sw (rad), MODEL.md §8.
+    pub steer_rad: Option<f64>,
+    pub speed_mps: Option<f64>,
+    /// Longitudinal acceleration (m/s², braking negative).
+    pub accel_mps2: Option<f64>,
+    /// Brake applied now, if known.
+    pub brake: Option<bool>,
+    /// A steering frame was rejected or timed out with this update.
+    pub steer_invalid: bool,
+}
+
+/// One finished braking event as the journal, the alerts and the report see it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EventSummary {
+    /// Brake onset / end, log time (s since the Unix epoch for live and candump logs).
+    pub t_start: f64,
+    pub t_end: f64,
+    pub v0_kmh: f64,
+    pub decel_g: f64,
+    /// MODEL.md §11 raw peak of the 3–25 Hz band-passed steering-wheel angle (deg).
+    pub peak_sw_bp_deg: Option<f64>,
+    /// Estimated true steering-wheel shimmy amplitude (deg), sensor quantisation and noise
+    /// accounted for; this is what the shimmy alert compares with its threshold.
+    pub sw_amplitude_deg: Option<f64>,
+    /// Used for estimation (inside the model's validity range, good data).
+    pub used: bool,
+    pub unused_reason: Option<String>,
+    /// Odometer at the event (km), from the daemon's speed integration.
+    #[serde(default)]
+    pub odometer_km: f64,
+}
+
+/// The observer's clearance estimate.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Estimate {
+    /// Posterior median (mm) when detectable.
+    pub clearance_mm: Option<f64>,
+    /// 90 % credible interval (mm).
+    pub interval_mm: Option<[f64; 2]>,
+    pub detectable: bool,
+    /// When not detectable: "below this" (mm).
+    pub below_mm: Option<f64>,
+    /// P(clearance > the alert threshold).
+    pub p_above: Option<f64>,
+    pub events_used: u32,
+}
+
+/// The event/estimation stage of the pipeline.
+pub trait EventStage {
+    /// What it is, for the start-up log line.
+    fn describe(&self) -> String;
+    /// Feeds one update; returns a braking event that finished with it.
+    fn push(&mut self, s: &Sample) -> Option<EventSummary>;
+    /// End of input: closes an open event.
+    fn finish(&mut self) -> Option<EventSummary>;
+    /// The current clearance estimate (None when the stage cannot estimate).
+    fn estimate(&self) -> Option<Estimate>;
+}
+
+/// No observer configured or built: nothing is detected, nothing is estimated.
+pub struct NoObserver;
+
+impl EventStage for NoObserver {
+    fn describe(&self) -> String {
+        "no observer: braking events are not detected and clearance is not estimated".into()
+    }
+    fn push(&mut self, _s: &Sample) -> Option<EventSummary> {
+        None
+    }
+    fn finish(&mut self) -> Option<EventSummary> {
+        None
+    }
+    fn estimate(&self) -> Option<Estimate> {
+        None
+    }
+}

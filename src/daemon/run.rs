@@ -1,0 +1,685 @@
+//! The shimmyd loop: opens the sources (live interfaces through
+//! [`crate::source::socketcan::LiveSource`], read-only, one reader thread each; or replayed logs
+//! at recorded timing or as fast as possible), feeds every frame to the
+//! [`crate::signals::Mapper`], every accepted update to the [`EventStage`], every finished
+//! event to the [`crate::alerts::AlertBook`], and writes events, alerts and estimates to the
+//! [`crate::journal`] and the [`super::state`].
+//!
+//! Signals: SIGTERM / SIGINT stop reading, close a braking event still open, journal it, fsync,
+//! save the state and exit 0; SIGHUP re-reads the configuration and applies `[alerts]` and
+//! `[log]` at once (a broken file is reported and the running configuration kept; `[input]`,
+//! `[events]` and `[outputs]` changes need a restart, which is logged).
+//! systemd: `READY=1` once the sources are open, `WATCHDOG=1` every second from the loop (so a
+//! hung loop is restarted), `STOPPING=1` on the way out; all no-ops outside systemd.
+//!
+//! What it is not: a network service (no listener), or the place where events are detected.
+
+use std::collections::VecDeque;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{mpsc, Arc};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use serde_json::json;
+
+use super::config::Config;
+use super::counters::{self, Counters};
+use super::pipeline::{EventStage, EventSummary, Sample};
+use super::state::{self, State};
+use crate::alerts::Transition;
+use crate::dbc::Database;
+use crate::journal::Journal;
+use crate::signals::mapping::MappingConfig;
+use crate::signals::{Mapper, Outcome, Reject};
+use crate::source::log::LogReader;
+use crate::source::{CanSource, SourceStats};
+use crate::wire::Frame;
+
+/// Command-line overrides.
+#[derive(Clone, Debug, Default)]
+pub struct Options {
+    pub config: PathBuf,
+    pub replay: Vec<PathBuf>,
+    pub fast: bool,
+    pub state_dir: Option<PathBuf>,
+    /// Overrides outputs.journal_dir.
+    pub journal_dir: Option<PathBuf>,
+}
+
+/// Builds the event stage for a configuration (the observer adapter, or [`super::pipeline::NoObserver`]).
+pub type StageFactory = dyn Fn(&Config) -> anyhow::Result<Box<dyn EventStage>>;
+
+/// Brake pressure above which the brake counts as applied when only pressure is mapped (Pa).
+const BRAKE_ON_PA: f64 = 3.0e5;
+/// Steering history kept for event traces (s) and its fixed capacity (samples).
+const TRACE_HISTORY_S: f64 = 30.0;
+const TRACE_CAP: usize = 8192;
+/// Trace kept with an event: from this long before the onset to the end of the event (the
+/// event is journaled when it ends, so nothing after it is known yet) (s).
+const TRACE_PRE_S: f64 = 1.0;
+
+fn log(msg: impl std::fmt::Display) {
+    eprintln!("shimmyd: {msg}");
+}
+
+enum Feed {
+    Frame(Frame),
+    Idle,
+    End,
+}
+
+/// Where frames come from.
+enum Input {
+    Replay {
+        logs: VecDeque<PathBuf>,
+        cur: Option<LogReader>,
+        done: SourceStats,
+        fast: bool,
+        /// (first frame time, wall clock at it) for recorded-timing replay.
+        anchor: Option<(i64, Instant)>,
+    },
+    Live {
+        rx: mpsc::Receiver<Frame>,
+        stats: Vec<Arc<std::sync::Mutex<SourceStats>>>,
+        stops: Vec<Arc<AtomicBool>>,
+        threads: Vec<std::thread::JoinHandle<()>>,
+    },
+}
+
+impl Input {
+    fn stats(&self) -> SourceStats {
+        match self {
+            Input::Replay { cur, done, .. } => {
+                let mut s = done.clone();
+                if let Some(r) = cur {
+                    counters::add(&mut s, &r.stats());
+                }
+                s
+            }
+            Input::Live { stats, .. } => {
+                let mut s = SourceStats::default();
+                for st in stats {
+                    counters::add(&mut s, &st.lock().expect("stats lock"));
+                }
+                s
+            }
+        }
+    }
+
+    fn next(&mut self, stop: &AtomicBool) -> anyhow::Result<Feed> {
+        match self {
+            Input::Replay {
+                logs,
+                cur,
+                done,
+                fast,
+                anchor,
+            } => loop {
+                if cur.is_none() {
+                    let Some(p) = logs.pop_front() else {
+                        return Ok(Feed::End);
+                    };
+                    let r = LogReader::open(&p)
+                        .with_context(|| format!("cannot open replay log {}", p.display()))?;
+                    log(format_args!("replaying {} ({:?})", p.display(), r.format()));
+                    *cur = Some(r);
+                }
+                let r = cur.as_mut().expect("set above");
+                for s in r.take_skips() {
+                    log(format_args!("skipped {}: {}", s.location, s.reason));
+                }
+                match r.next_frame().context("reading replay log")? {
+                    Some(f) => {
+                        if !*fast {
+                            let (t0, w0) = *anchor.get_or_insert((f.t_ns, Instant::now()));
+                            let due = Duration::from_nanos((f.t_ns - t0).max(0) as u64);
+                            // Sleep in short steps so signals are seen promptly.
+                            while w0.elapsed() < due && !stop.load(Ordering::Relaxed) {
+                                std::thread::sleep(
+                                    due.saturating_sub(w0.elapsed())
+                                        .min(Duration::from_millis(50)),
+                                );
+                            }
+                        }
+                        return Ok(Feed::Frame(f));
+                    }
+                    None => {
+                        counters::add(done, &r.stats());
+                        *cur = None;
+                    }
+                }
+            },
+            Input::Live { rx, .. } => match rx.recv_timeout(Duration::from_millis(200)) {
+                Ok(f) => Ok(Feed::Frame(f)),
+                Err(mpsc::RecvTimeoutError::Timeout) => Ok(Feed::Idle),
+                Err(mpsc::RecvTimeoutError::Disconnected) => Ok(Feed::End),
+            },
+        }
+    }
+
+    fn stop(&mut self) {
+        if let Input::Live { stops, threads, .. } = self {
+            stops.iter().for_each(|s| s.store(true, Ordering::Relaxed));
+            for t in threads.drain(..) {
+                let _ = t.join();
+            }
+        }
+    }
+}
+
+#[cfg(target_os = "linux")]
+fn open_live(ifaces: &[String], ids: &[(u32, bool)]) -> anyhow::Result<Input> {
+    use crate::source::socketcan::{FilterId, LiveConfig, LiveSource};
+    let (tx, rx) = mpsc::sync_channel::<Frame>(16_384);
+    let (mut stats, mut stops, mut threads) = (Vec::new(), Vec::new(), Vec::new());
+    for name in ifaces {
+        let mut cfg = LiveConfig::new(name);
+        cfg.ids = Some(
+            ids.iter()
+                .map(|&(id, ext)| {
+                    if ext {
+                        FilterId::extended(id)
+                    } else {
+                        FilterId::standard(id)
+                    }
+                })
+                .collect(),
+        );
+        let mut src = LiveSource::open_waiting(cfg)
+            .with_context(|| format!("input.interfaces: cannot open {name}"))?;
+        let st = Arc::new(std::sync::Mutex::new(SourceStats::default()));
+        stops.push(src.stop_handle());
+        stats.push(st.clone());
+        let tx = tx.clone();
+        let name = name.clone();
+        threads.push(
+            std::thread::Builder::new()
+                .name(format!("rx-{name}"))
+                .spawn(move || loop {
+                    match src.next_frame() {
+                        Ok(Some(f)) => {
+                            *st.lock().expect("stats lock") = src.stats();
+                            if tx.send(f).is_err() {
+                                return;
+                            }
+                        }
+                        Ok(None) => return,
+                        Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {
+                            *st.lock().expect("stats lock") = src.stats();
+                        }
+                        Err(e) => {
+                            log(format_args!("{name}: {e}"));
+                            std::thread::sleep(Duration::from_millis(200));
+                        }
+                    }
+                })?,
+        );
+    }
+    Ok(Input::Live {
+        rx,
+        stats,
+        stops,
+        threads,
+    })
+}
+
+#[cfg(not(target_os = "linux"))]
+fn open_live(_: &[String], _: &[(u32, bool)]) -> anyhow::Result<Input> {
+    bail!("input.interfaces: live SocketCAN input needs Linux")
+}
+
+/// Steering samples of the last seconds, in a ring allocated once.
+struct SteerHistory {
+    buf: VecDeque<(i64, f64)>,
+}
+
+impl SteerHistory {
+    fn push(&mut self, t_ns: i64, rad: f64) {
+        if self.buf.len() == TRACE_CAP {
+            self.buf.pop_front();
+        }
+        self.buf.push_back((t_ns, rad));
+        let horizon = t_ns - (TRACE_HISTORY_S * 1e9) as i64;
+        while self.buf.front().is_some_and(|&(t, _)| t < horizon) {
+            self.buf.pop_front();
+        }
+    }
+
+    /// `{t0, t_s: [...], angle_deg: [...]}` around an event (times relative to its onset).
+    fn trace(&self, e: &EventSummary) -> serde_json::Value {
+        let lo = e.t_start - TRACE_PRE_S;
+        let hi = e.t_end;
+        let (mut ts, mut xs) = (Vec::new(), Vec::new());
+        for &(t, a) in &self.buf {
+            let t = t as f64 * 1e-9;
+            if t >= lo && t <= hi {
+                ts.push(((t - e.t_start) * 1e4).round() / 1e4);
+                xs.push((a.to_degrees() * 1e4).round() / 1e4);
+            }
+        }
+        json!({ "t0": e.t_start, "t_s": ts, "angle_deg": xs })
+    }
+}
+
+/// Everything the loop owns.
+struct Daemon {
+    cfg: Config,
+    cfg_path: PathBuf,
+    state_dir: PathBuf,
+    journal: Journal,
+    state: State,
+    stage: Box<dyn EventStage>,
+    mapper: Mapper,
+    steer_msg: Option<usize>,
+    history: SteerHistory,
+    last_speed: Option<(i64, f64)>,
+    events: u64,
+}
+
+impl Daemon {
+    fn sample(&mut self, f: &Frame) -> Option<Sample> {
+        let u = self.mapper.on_frame(f)?;
+        let snap = self.mapper.snapshot(f.t_ns);
+        let brake = snap
+            .brake_pressed
+            .valid()
+            .or_else(|| snap.brake_pressure_pa.valid().map(|p| p > BRAKE_ON_PA));
+        let mut s = Sample {
+            t_ns: f.t_ns,
+            brake,
+            ..Sample::default()
+        };
+        match u.outcome {
+            Outcome::Accepted(c) => {
+                if c.steer_angle {
+                    s.steer_rad = snap.steer_angle_rad.valid();
+                    if let Some(a) = s.steer_rad {
+                        self.history.push(f.t_ns, a);
+                    }
+                }
+                if c.speed {
+                    s.speed_mps = snap.speed_mps.valid();
+                    if let Some(v) = s.speed_mps {
+                        self.odometer(f.t_ns, v);
+                    }
+                }
+                if c.accel {
+                    s.accel_mps2 = snap.accel_mps2.valid();
+                }
+            }
+            Outcome::Rejected(
+                Reject::Checksum(_) | Reject::CounterRepeat { .. } | Reject::Short { .. },
+            ) => {
+                s.steer_invalid = Some(u.message) == self.steer_msg;
+            }
+        }
+        Some(s)
+    }
+
+    /// Integrates speed into the odometer (trapezoid; gaps over 1 s are not bridged).
+    fn odometer(&mut self, t_ns: i64, v: f64) {
+        if let Some((t0, v0)) = self.last_speed {
+            let dt = (t_ns - t0) as f64 * 1e-9;
+            if dt > 0.0 && dt < 1.0 {
+                self.state.odometer_km += 0.5 * (v + v0) * dt / 1000.0;
+            }
+        }
+        self.last_speed = Some((t_ns, v));
+    }
+
+    fn on_event(&mut self, mut e: EventSummary) -> anyhow::Result<()> {
+        e.odometer_km = self.state.odometer_km;
+        self.events += 1;
+        let est = self.stage.estimate();
+        let trace = self.history.trace(&e);
+        self.journal.append(&json!({
+            "type": "event",
+            "event": &e,
+            "trace": trace,
+        }))?;
+        if let Some(est) = &est {
+            self.journal.append(&json!({
+                "type": "estimate",
+                "t": e.t_end,
+                "odometer_km": e.odometer_km,
+                "estimate": est,
+            }))?;
+        }
+        let transitions = self
+            .state
+            .alerts
+            .on_event(&self.cfg.alerts, &e, est.as_ref());
+        for t in &transitions {
+            let (what, a) = match t {
+                Transition::Raised(a) => ("raised", a),
+                Transition::Updated(a) => ("updated", a),
+                Transition::Cleared(a) => ("cleared", a),
+            };
+            log(format_args!(
+                "alert {what}: #{} {}: {}",
+                a.id,
+                a.kind.as_str(),
+                a.summary
+            ));
+            self.journal
+                .append(&json!({ "type": "alert", "transition": what, "alert": a }))?;
+        }
+        log(format_args!(
+            "braking event at {:.2} s: {:.1} km/h, {:.2} g, amplitude {}, {}",
+            e.t_start,
+            e.v0_kmh,
+            e.decel_g,
+            e.sw_amplitude_deg
+                .map_or("n/a".to_string(), |a| format!("{a:.3} deg")),
+            if e.used { "used" } else { "not used" }
+        ));
+        self.state.estimate = est;
+        self.state.push_event(e);
+        self.journal.sync()?;
+        self.state.journal_seq = self.journal.durable_seq();
+        state::save(&self.state_dir, &self.state)?;
+        Ok(())
+    }
+
+    fn reload(&mut self) {
+        match Config::load(&self.cfg_path) {
+            Err(e) => log(format_args!(
+                "SIGHUP: configuration not reloaded, keeping the running one: {e:#}"
+            )),
+            Ok(new) => {
+                if new.input != self.cfg.input
+                    || new.events != self.cfg.events
+                    || new.outputs != self.cfg.outputs
+                    || new.vehicle != self.cfg.vehicle
+                {
+                    log("SIGHUP: [input], [vehicle], [events] or [outputs] changed: these take effect after a restart");
+                }
+                self.cfg.alerts = new.alerts;
+                self.cfg.log = new.log;
+                log("SIGHUP: configuration reloaded ([alerts] and [log] applied)");
+                let _ = self
+                    .journal
+                    .append(&json!({"type": "reload", "alerts": &self.cfg.alerts}));
+            }
+        }
+    }
+}
+
+/// Runs the daemon until the input ends (replay) or SIGTERM/SIGINT.
+pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
+    let mut cfg = Config::load(&opts.config)?;
+    if let Some(j) = &opts.journal_dir {
+        cfg.outputs.journal_dir = j.clone();
+    }
+    let (db, report) = Database::load(&cfg.input.dbc)
+        .with_context(|| format!("input.dbc: cannot load {}", cfg.input.dbc.display()))?;
+    if !report.skipped.is_empty() {
+        log(format_args!(
+            "{}: {} DBC item(s) skipped (first: line {} {}: {})",
+            cfg.input.dbc.display(),
+            report.skipped.len(),
+            report.skipped[0].line,
+            report.skipped[0].item,
+            report.skipped[0].reason
+        ));
+    }
+    let mapping = MappingConfig::from_toml_file(&cfg.input.mapping).context("input.mapping")?;
+    let mapper = Mapper::new(&db, &mapping).with_context(|| {
+        format!(
+            "input.mapping: {} does not fit the DBC",
+            cfg.input.mapping.display()
+        )
+    })?;
+    for w in mapper.warnings() {
+        log(format_args!("mapping: {w}"));
+    }
+    let steer_msg = mapper
+        .stats()
+        .iter()
+        .position(|m| m.name == mapping.steer_angle.message);
+
+    let replay = if opts.replay.is_empty() {
+        cfg.input.replay.clone()
+    } else {
+        opts.replay.clone()
+    };
+    if replay.is_empty() && cfg.input.interfaces.is_empty() {
+        bail!("input.interfaces: no interface configured and nothing to replay (give --replay LOG or set input.interfaces)");
+    }
+    let live = replay.is_empty();
+
+    let state_dir = opts
+        .state_dir
+        .clone()
+        .unwrap_or(cfg.outputs.state_dir.clone());
+    let (journal, rec) =
+        Journal::open(&cfg.outputs.journal_dir, cfg.journal()).context("outputs.journal_dir")?;
+    if rec.truncated_bytes > 0 || rec.corrupt_lines > 0 {
+        log(format_args!(
+            "journal recovery: cut a torn/corrupt tail of {} bytes, {} corrupt line(s) skipped, last good record {:?}",
+            rec.truncated_bytes, rec.corrupt_lines, rec.last_seq
+        ));
+    }
+    let (loaded, problem) = state::load(&state_dir).context("outputs.state_dir")?;
+    if let Some(p) = problem {
+        log(p);
+    }
+    let resumed = loaded.is_some();
+    let st = loaded.unwrap_or_else(|| State {
+        version: 1,
+        odometer_km: cfg.vehicle.initial_odometer_km,
+        ..State::default()
+    });
+
+    let term = Arc::new(AtomicBool::new(false));
+    let hup = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+        signal_hook::flag::register(sig, term.clone()).context("cannot install signal handler")?;
+    }
+    signal_hook::flag::register(signal_hook::consts::SIGHUP, hup.clone())
+        .context("cannot install SIGHUP handler")?;
+
+    let stage = make_stage(&cfg)?;
+    log(format_args!("event stage: {}", stage.describe()));
+
+    let mut input = if live {
+        open_live(&cfg.input.interfaces, mapper.needed_ids())?
+    } else {
+        Input::Replay {
+            logs: replay.iter().cloned().collect(),
+            cur: None,
+            done: SourceStats::default(),
+            fast: opts.fast || cfg.input.fast,
+            anchor: None,
+        }
+    };
+    let mut sink = open_sink(&cfg, &db, live)?;
+
+    let mut d = Daemon {
+        cfg,
+        cfg_path: opts.config.clone(),
+        state_dir,
+        journal,
+        state: st,
+        stage,
+        mapper,
+        steer_msg,
+        history: SteerHistory {
+            buf: VecDeque::with_capacity(TRACE_CAP),
+        },
+        last_speed: None,
+        events: 0,
+    };
+    d.journal.append(&json!({
+        "type": "start",
+        "pid": std::process::id(),
+        "mode": if live { "live" } else { "replay" },
+        "inputs": if live { d.cfg.input.interfaces.iter().map(|s| s.to_string()).collect::<Vec<_>>() }
+                  else { replay.iter().map(|p| p.display().to_string()).collect() },
+        "resumed_state": resumed,
+        "odometer_km": d.state.odometer_km,
+        "journal_recovery": rec,
+    }))?;
+    d.journal.sync()?;
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
+    log(format_args!(
+        "started ({}), journal {}, state {}",
+        if live { "live, read-only" } else { "replay" },
+        d.cfg.outputs.journal_dir.display(),
+        d.state_dir.display()
+    ));
+
+    let mut last_counters = Counters::default();
+    let mut last_log = Instant::now();
+    let mut last_watchdog = Instant::now();
+    let mut last_tx = Instant::now();
+    let mut frames_since_check = 0u32;
+    let result = loop {
+        if term.load(Ordering::Relaxed) {
+            log("SIGTERM: stopping");
+            break Ok(());
+        }
+        if hup.swap(false, Ordering::Relaxed) {
+            d.reload();
+        }
+        let feed = match input.next(&term) {
+            Ok(f) => f,
+            Err(e) => break Err(e),
+        };
+        match feed {
+            Feed::End => break Ok(()),
+            Feed::Idle => {}
+            Feed::Frame(f) => {
+                if let Some(s) = d.sample(&f) {
+                    if let Some(e) = d.stage.push(&s) {
+                        if let Err(e) = d.on_event(e) {
+                            break Err(e);
+                        }
+                    }
+                }
+            }
+        }
+        frames_since_check += 1;
+        if frames_since_check < 256 && !matches!(feed, Feed::Idle) {
+            continue;
+        }
+        frames_since_check = 0;
+        if let Err(e) = d.journal.tick() {
+            break Err(e);
+        }
+        if last_watchdog.elapsed() >= Duration::from_secs(1) {
+            let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+            last_watchdog = Instant::now();
+        }
+        if let Some((enc, sink)) = sink.as_mut() {
+            if last_tx.elapsed() >= Duration::from_millis(100) {
+                last_tx = Instant::now();
+                if let Err(e) = transmit(&d, enc, sink) {
+                    log(format_args!("transmit: {e:#}"));
+                }
+            }
+        }
+        if last_log.elapsed() >= Duration::from_secs(d.cfg.log.counters_interval_s) {
+            let now = Counters::from_stats(&input.stats(), &d.mapper.stats(), d.events);
+            log(format_args!(
+                "last {} s: {}",
+                d.cfg.log.counters_interval_s,
+                now.minus(&last_counters)
+            ));
+            last_counters = now;
+            last_log = Instant::now();
+        }
+    };
+    input.stop();
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
+    // Close an event still open (end of replay or SIGTERM mid-braking) so it is not lost.
+    if let Some(e) = d.stage.finish() {
+        d.on_event(e)?;
+    }
+    let totals = Counters::from_stats(&input.stats(), &d.mapper.stats(), d.events);
+    d.journal.append(&json!({
+        "type": "stop",
+        "reason": if result.is_ok() { "end" } else { "error" },
+        "counters": totals,
+        "messages": d.mapper.stats(),
+        "odometer_km": d.state.odometer_km,
+        "estimate": &d.state.estimate,
+    }))?;
+    d.journal.sync()?;
+    d.state.journal_seq = d.journal.durable_seq();
+    state::save(&d.state_dir, &d.state)?;
+    log(format_args!("stopped: {totals}"));
+    result
+}
+
+#[cfg(target_os = "linux")]
+type Sink = (super::transmit::Encoder, crate::source::socketcan::LiveSink);
+#[cfg(not(target_os = "linux"))]
+type Sink = (super::transmit::Encoder, ());
+
+fn open_sink(cfg: &Config, db: &Database, live: bool) -> anyhow::Result<Option<Sink>> {
+    if !cfg.outputs.transmit {
+        return Ok(None);
+    }
+    if !live {
+        log("outputs.transmit is set but this is a replay: nothing is sent");
+        return Ok(None);
+    }
+    let enc = super::transmit::Encoder::new(db)?;
+    let iface = cfg
+        .outputs
+        .transmit_interface
+        .as_deref()
+        .unwrap_or_default();
+    #[cfg(target_os = "linux")]
+    {
+        let sink = crate::source::socketcan::LiveSink::open(iface)
+            .with_context(|| format!("outputs.transmit_interface: cannot open {iface}"))?;
+        log(format_args!(
+            "transmitting SHIMMY_01 on {iface} (outputs.transmit = true)"
+        ));
+        Ok(Some((enc, sink)))
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = (enc, iface);
+        bail!("outputs.transmit needs Linux SocketCAN")
+    }
+}
+
+#[cfg(target_os = "linux")]
+fn transmit(
+    d: &Daemon,
+    enc: &mut super::transmit::Encoder,
+    sink: &mut crate::source::socketcan::LiveSink,
+) -> anyhow::Result<()> {
+    use super::transmit::AlertState;
+    use crate::alerts::Kind;
+    let a = &d.state.alerts;
+    let st = if a.is_open(Kind::Clearance) {
+        AlertState::Warning
+    } else if a.is_open(Kind::Shimmy55) {
+        AlertState::Advisory
+    } else if d.state.events_total == 0 {
+        AlertState::Init
+    } else {
+        AlertState::Ok
+    };
+    let est = d.state.estimate.as_ref();
+    let f = enc.frame(
+        d.mapper.now_ns().unwrap_or(0),
+        st,
+        d.state.events_total,
+        est.and_then(|e| e.clearance_mm),
+        d.state.events.last().and_then(|e| e.sw_amplitude_deg),
+        est.and_then(|e| e.p_above).map_or(0.0, |p| p * 100.0),
+    )?;
+    sink.send(&f).context("sending SHIMMY_01")?;
+    Ok(())
+}
+
+#[cfg(not(target_os = "linux"))]
+fn transmit(_: &Daemon, _: &mut super::transmit::Encoder, _: &mut ()) -> anyhow::Result<()> {
+    Ok(())
+}

@@ -1,0 +1,102 @@
+//! shimmyd's persisted state (issue 6 item 4): clearance estimate, recent event history,
+//! odometer and open alerts, in `<state_dir>/state.json`, written atomically.
+//!
+//! Atomic write: the new content goes to `state.json.tmp`, which is fsynced, renamed over
+//! `state.json`, and the directory is fsynced; a crash at any instant leaves either the old or
+//! the new file, never a mix. A state file that does not parse is moved aside
+//! (`state.json.bad-<unix time>`) and reported, never silently overwritten.
+//!
+//! What it is not: the event journal (the journal is the complete record; the state is what the
+//! daemon needs to resume quickly).
+
+use std::fs::{self, File};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use serde::{Deserialize, Serialize};
+
+use super::pipeline::{Estimate, EventSummary};
+use crate::alerts::AlertBook;
+
+/// Most events kept in the state's history (the journal keeps all of them).
+pub const HISTORY: usize = 200;
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct State {
+    pub version: u32,
+    pub odometer_km: f64,
+    pub estimate: Option<Estimate>,
+    pub events: Vec<EventSummary>,
+    pub events_total: u64,
+    pub alerts: AlertBook,
+    /// Last journal sequence number covered by this state.
+    pub journal_seq: Option<u64>,
+}
+
+impl State {
+    pub fn push_event(&mut self, e: EventSummary) {
+        if self.events.len() >= HISTORY {
+            self.events.remove(0);
+        }
+        self.events.push(e);
+        self.events_total += 1;
+    }
+}
+
+fn path(dir: &Path) -> PathBuf {
+    dir.join("state.json")
+}
+
+/// Loads the state; `Ok(None)` when there is none. A corrupt file is moved aside and reported
+/// through the returned message.
+pub fn load(dir: &Path) -> anyhow::Result<(Option<State>, Option<String>)> {
+    let p = path(dir);
+    let text = match fs::read(&p) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok((None, None)),
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", p.display())),
+    };
+    match serde_json::from_slice::<State>(&text) {
+        Ok(s) => Ok((Some(s), None)),
+        Err(e) => {
+            let secs = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_secs());
+            let aside = dir.join(format!("state.json.bad-{secs}"));
+            fs::rename(&p, &aside)
+                .with_context(|| format!("cannot move corrupt {} aside", p.display()))?;
+            Ok((
+                None,
+                Some(format!(
+                    "{} did not parse ({e}); moved to {} and starting fresh",
+                    p.display(),
+                    aside.display()
+                )),
+            ))
+        }
+    }
+}
+
+/// Writes `bytes` to `dir/name` atomically (temp file, fsync, rename, fsync directory).
+pub fn write_atomic(dir: &Path, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
+    fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let tmp = dir.join(format!("{name}.tmp"));
+    let dst = dir.join(name);
+    {
+        let mut f =
+            File::create(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
+        f.write_all(bytes)?;
+        f.sync_all()
+            .with_context(|| format!("cannot fsync {}", tmp.display()))?;
+    }
+    fs::rename(&tmp, &dst).with_context(|| format!("cannot rename to {}", dst.display()))?;
+    File::open(dir)?.sync_all()?;
+    Ok(())
+}
+
+pub fn save(dir: &Path, s: &State) -> anyhow::Result<()> {
+    let bytes = serde_json::to_vec_pretty(s)?;
+    write_atomic(dir, "state.json", &bytes)
+}

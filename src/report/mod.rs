@@ -1,0 +1,585 @@
+//! Workshop inspection report (issue 6 item 5): what a mechanic needs to decide about the
+//! steering joints, from shimmyd's journal, its state directory, or straight from logs (the CLI
+//! replays them through the daemon's pipeline into a temporary journal first).
+//!
+//! [`ReportData`] is the machine form (`--format json`); [`html`] renders it as one
+//! self-contained page: the verdict first (joint condition, estimated clearance with its
+//! interval, the trend over distance with the 0.07 mm and 0.1 mm lines), then the evidence
+//! (steering-wheel angle around the worst braking events, their spectra, the event table), then
+//! the guidance and the data-quality counters. Plots are inline SVG ([`svg`]); there are no
+//! scripts and no external assets.
+//!
+//! What it is not: an estimator. It shows what the daemon recorded and never recomputes or
+//! invents an estimate.
+
+pub mod svg;
+
+use std::fmt::Write;
+use std::path::Path;
+
+use anyhow::{bail, Context};
+use serde::Serialize;
+
+use crate::alerts::{Alert, Kind};
+use crate::daemon::config::AlertsSection;
+use crate::daemon::pipeline::{Estimate, EventSummary};
+
+/// Steering-wheel trace of one event, as journaled (times relative to the brake onset).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
+pub struct Trace {
+    pub t0: f64,
+    pub t_s: Vec<f64>,
+    pub angle_deg: Vec<f64>,
+}
+
+/// One point of the clearance trend.
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn when_formats_epoch_and_relative_times() {
+        assert_eq!(super::when(1_767_225_611.14), "2026-01-01 00:00:11.1 UTC");
+        assert_eq!(
+            super::when(1_078_012_800.0 + 86_399.0),
+            "2004-02-29 23:59:59.0 UTC"
+        );
+        assert_eq!(super::when(12.5), "12.50 s");
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TrendPoint {
+    pub odometer_km: f64,
+    pub t: f64,
+    pub estimate: Estimate,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Verdict {
+    /// `replace`, `inspect`, `ok`, `unknown`.
+    pub condition: String,
+    pub headline: String,
+    pub estimate: Option<Estimate>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct WorstEvent {
+    pub event: EventSummary,
+    pub trace: Option<Trace>,
+}
+
+/// Everything the report shows (the JSON format).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ReportData {
+    pub source: String,
+    pub verdict: Verdict,
+    pub odometer_km: Option<f64>,
+    pub trend: Vec<TrendPoint>,
+    /// Alerts open at the end of the record.
+    pub open_alerts: Vec<Alert>,
+    /// Every alert transition, in order (`raised` / `updated` / `cleared`).
+    pub alert_history: Vec<serde_json::Value>,
+    pub events: Vec<EventSummary>,
+    /// Up to three used events with the largest amplitude, with their traces when recorded.
+    pub worst: Vec<WorstEvent>,
+    /// Counters of the last daemon run (frames, decode errors, ...), when journaled.
+    pub counters: Option<serde_json::Value>,
+    pub journal_invalid_lines: u64,
+    pub guidance: Vec<String>,
+}
+
+fn verdict(open: &[Alert], est: Option<&Estimate>, events: usize, cfg: &AlertsSection) -> Verdict {
+    let has = |k| open.iter().any(|a: &Alert| a.kind == k);
+    let (condition, headline) = if has(Kind::Clearance) {
+        (
+            "replace",
+            format!(
+                "Steering joints worn: estimated clearance above {:.2} mm. Replace the tie-rod / trapezoid-arm joints.",
+                cfg.clearance_mm
+            ),
+        )
+    } else if has(Kind::Shimmy55) {
+        (
+            "inspect",
+            format!(
+                "Steering-wheel shimmy above {:.2} deg when braking at {:.0}-{:.0} km/h: inspect the steering joint clearances now.",
+                cfg.shimmy_deg, cfg.shimmy_speed_min_kmh, cfg.shimmy_speed_max_kmh
+            ),
+        )
+    } else {
+        match est {
+            Some(e) if e.events_used > 0 => match (e.detectable, e.clearance_mm, e.below_mm) {
+                (true, Some(c), _) => (
+                    "ok",
+                    format!("No alert. Estimated clearance {c:.3} mm (below the {:.2} mm replacement limit).", cfg.clearance_mm),
+                ),
+                (_, _, Some(b)) => (
+                    "ok",
+                    format!("No alert. Clearance below the detection limit (below {b:.2} mm)."),
+                ),
+                _ => ("ok", "No alert.".to_string()),
+            },
+            _ if events == 0 => (
+                "unknown",
+                "No usable braking events recorded: the joints cannot be judged from this data.".into(),
+            ),
+            _ => (
+                "unknown",
+                "No alert, but no clearance estimate is available (no response table or no usable event).".into(),
+            ),
+        }
+    };
+    Verdict {
+        condition: condition.into(),
+        headline,
+        estimate: est.cloned(),
+    }
+}
+
+fn worst(events: &[EventSummary], traces: &[(f64, Trace)]) -> Vec<WorstEvent> {
+    let mut idx: Vec<usize> = (0..events.len())
+        .filter(|&i| {
+            events[i]
+                .sw_amplitude_deg
+                .or(events[i].peak_sw_bp_deg)
+                .is_some()
+        })
+        .collect();
+    let amp = |e: &EventSummary| e.sw_amplitude_deg.or(e.peak_sw_bp_deg).unwrap_or(0.0);
+    idx.sort_by(|&a, &b| amp(&events[b]).total_cmp(&amp(&events[a])));
+    idx.truncate(3);
+    idx.into_iter()
+        .map(|i| WorstEvent {
+            event: events[i].clone(),
+            trace: traces
+                .iter()
+                .find(|(t, _)| (*t - events[i].t_start).abs() < 1e-6)
+                .map(|(_, tr)| tr.clone()),
+        })
+        .collect()
+}
+
+fn guidance_lines(cfg: &AlertsSection, odometer_km: Option<f64>) -> Vec<String> {
+    crate::alerts::routine_guidance(cfg, odometer_km.unwrap_or(0.0))
+}
+
+/// Builds the report from a journal directory.
+pub fn from_journal(dir: &Path, cfg: &AlertsSection) -> anyhow::Result<ReportData> {
+    let mut r = crate::journal::Reader::open(dir)?;
+    let mut events = Vec::new();
+    let mut traces = Vec::new();
+    let mut trend = Vec::new();
+    let mut alert_history = Vec::new();
+    let mut open: Vec<Alert> = Vec::new();
+    let mut counters = None;
+    let mut odometer = None;
+    let mut last_est = None;
+    for e in &mut r {
+        let e = e?;
+        match e.rec.get("type").and_then(|t| t.as_str()) {
+            Some("event") => {
+                let ev: EventSummary = serde_json::from_value(e.rec["event"].clone())
+                    .with_context(|| format!("journal record {}: bad event", e.seq))?;
+                if let Ok(t) = serde_json::from_value::<Trace>(e.rec["trace"].clone()) {
+                    traces.push((ev.t_start, t));
+                }
+                odometer = Some(ev.odometer_km);
+                events.push(ev);
+            }
+            Some("estimate") => {
+                let est: Estimate = serde_json::from_value(e.rec["estimate"].clone())
+                    .with_context(|| format!("journal record {}: bad estimate", e.seq))?;
+                last_est = Some(est.clone());
+                trend.push(TrendPoint {
+                    odometer_km: e.rec["odometer_km"].as_f64().unwrap_or(0.0),
+                    t: e.rec["t"].as_f64().unwrap_or(0.0),
+                    estimate: est,
+                });
+            }
+            Some("alert") => {
+                let a: Alert = serde_json::from_value(e.rec["alert"].clone())
+                    .with_context(|| format!("journal record {}: bad alert", e.seq))?;
+                let tr = e.rec["transition"].as_str().unwrap_or("");
+                open.retain(|o| o.kind != a.kind);
+                if tr != "cleared" {
+                    open.push(a.clone());
+                }
+                alert_history.push(e.rec.clone());
+            }
+            Some("stop") => {
+                counters = Some(e.rec["counters"].clone());
+                if let Some(o) = e.rec["odometer_km"].as_f64() {
+                    odometer = Some(o);
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(ReportData {
+        source: format!("journal {}", dir.display()),
+        verdict: verdict(&open, last_est.as_ref(), events.len(), cfg),
+        odometer_km: odometer,
+        trend,
+        open_alerts: open,
+        alert_history,
+        worst: worst(&events, &traces),
+        events,
+        counters,
+        journal_invalid_lines: r.invalid_lines(),
+        guidance: guidance_lines(cfg, odometer),
+    })
+}
+
+/// Builds the report from a state directory (no traces, no trend: the state keeps only the
+/// latest estimate and recent events).
+pub fn from_state(dir: &Path, cfg: &AlertsSection) -> anyhow::Result<ReportData> {
+    let (st, problem) = crate::daemon::state::load(dir)?;
+    let Some(st) = st else {
+        bail!(
+            "{}: no state.json{}",
+            dir.display(),
+            problem.map(|p| format!(" ({p})")).unwrap_or_default()
+        );
+    };
+    let trend = st
+        .estimate
+        .iter()
+        .map(|e| TrendPoint {
+            odometer_km: st.odometer_km,
+            t: st.events.last().map_or(0.0, |e| e.t_end),
+            estimate: e.clone(),
+        })
+        .collect();
+    Ok(ReportData {
+        source: format!("state {}", dir.display()),
+        verdict: verdict(&st.alerts.open, st.estimate.as_ref(), st.events.len(), cfg),
+        odometer_km: Some(st.odometer_km),
+        trend,
+        open_alerts: st.alerts.open.clone(),
+        alert_history: Vec::new(),
+        worst: worst(&st.events, &[]),
+        events: st.events,
+        counters: None,
+        journal_invalid_lines: 0,
+        guidance: guidance_lines(cfg, Some(st.odometer_km)),
+    })
+}
+
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+/// A log time for people: UTC date and time for Unix-epoch times, plain seconds otherwise
+/// (logs with relative timestamps).
+pub fn when(t: f64) -> String {
+    if !(1.0e9..1.0e11).contains(&t) {
+        return format!("{t:.2} s");
+    }
+    let secs = t.floor() as i64;
+    let (days, sod) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Civil date from days since 1970-01-01 (H. Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02}.{:01} UTC",
+        sod / 3600,
+        sod / 60 % 60,
+        sod % 60,
+        ((t - t.floor()) * 10.0).floor() as u32
+    )
+}
+
+fn opt(v: Option<f64>, digits: usize) -> String {
+    v.map_or("–".into(), |x| format!("{x:.digits$}"))
+}
+
+fn trend_svg(d: &ReportData) -> String {
+    let pts: Vec<&TrendPoint> = d.trend.iter().collect();
+    let x0 = pts.first().map_or(0.0, |p| p.odometer_km);
+    let x1 = pts.last().map_or(1.0, |p| p.odometer_km).max(x0 + 0.1);
+    let mut ymax: f64 = 0.15;
+    for p in &pts {
+        if let Some([_, hi]) = p.estimate.interval_mm {
+            ymax = ymax.max(hi * 1.1);
+        }
+    }
+    let mut c = svg::Chart::new(
+        "Estimated joint clearance over distance (90 % interval shaded)",
+        "odometer (km)",
+        "clearance (mm)",
+        (x0, x1),
+        (0.0, ymax.min(1.0)),
+    );
+    let band: Vec<(f64, f64, f64)> = pts
+        .iter()
+        .filter_map(|p| {
+            p.estimate
+                .interval_mm
+                .map(|[lo, hi]| (p.odometer_km, lo, hi))
+        })
+        .collect();
+    c.band(&band, "#9ec5e8");
+    let med: Vec<(f64, f64)> = pts
+        .iter()
+        .filter_map(|p| p.estimate.clearance_mm.map(|m| (p.odometer_km, m)))
+        .collect();
+    c.line(&med, "#1f5fa8", 2.0);
+    c.points(&med, "#1f5fa8");
+    c.hline(
+        0.07,
+        "#c98a00",
+        "0.07 mm: new-joint limit / onset of chaotic shimmy",
+    );
+    c.hline(0.1, "#c0262d", "0.1 mm: replace");
+    c.render()
+}
+
+fn trace_svgs(w: &WorstEvent, rank: usize) -> (String, String) {
+    let e = &w.event;
+    let Some(tr) = w.trace.as_ref().filter(|t| t.t_s.len() >= 16) else {
+        return (String::new(), String::new());
+    };
+    let n = tr.t_s.len();
+    let mut dts: Vec<f64> = tr
+        .t_s
+        .windows(2)
+        .map(|p| p[1] - p[0])
+        .filter(|d| *d > 0.0)
+        .collect();
+    dts.sort_by(f64::total_cmp);
+    let fs = dts.get(dts.len() / 2).map_or(100.0, |d| 1.0 / d);
+    let x = &tr.angle_deg;
+    let mean = x.iter().sum::<f64>() / n as f64;
+    let centered: Vec<f64> = x.iter().map(|v| v - mean).collect();
+    let bp =
+        crate::analysis::filter::bandpass_zero_phase(&centered, fs, 3.0, 25.0f64.min(0.45 * fs), 4)
+            .ok();
+    let lim = centered
+        .iter()
+        .chain(bp.iter().flatten())
+        .fold(0.1f64, |m, v| m.max(v.abs()))
+        * 1.1;
+    let mut c = svg::Chart::new(
+        &format!(
+            "#{rank}: steering-wheel angle, braking from {:.0} km/h at {:.2} g",
+            e.v0_kmh, e.decel_g
+        ),
+        "time from brake onset (s)",
+        "angle minus mean (deg)",
+        (tr.t_s[0], tr.t_s[n - 1]),
+        (-lim, lim),
+    );
+    let raw: Vec<(f64, f64)> = tr
+        .t_s
+        .iter()
+        .copied()
+        .zip(centered.iter().copied())
+        .collect();
+    c.line(&raw, "#999999", 1.0);
+    if let Some(bp) = &bp {
+        let pts: Vec<(f64, f64)> = tr.t_s.iter().copied().zip(bp.iter().copied()).collect();
+        c.line(&pts, "#c0262d", 1.5);
+    }
+    c.vline(0.0, "#333");
+    c.vline(e.t_end - e.t_start, "#333");
+    let time = c.render();
+    let spec = match crate::analysis::spectrum::welch(
+        &centered,
+        fs,
+        (n as f64 / fs / 2.0).clamp(0.5, 2.0),
+    ) {
+        Ok(psd) => {
+            let pts: Vec<(f64, f64)> = psd
+                .freqs_hz
+                .iter()
+                .zip(&psd.density)
+                .filter(|(f, _)| **f <= 30.0f64.min(fs / 2.0))
+                .map(|(f, p)| (*f, p.max(1e-12).log10() * 10.0))
+                .collect();
+            let (lo, hi) = pts
+                .iter()
+                .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+            let mut c = svg::Chart::new(
+                &format!("#{rank}: spectrum of the steering-wheel angle (Welch)"),
+                "frequency (Hz)",
+                "PSD (dB re 1 deg²/Hz)",
+                (0.0, 30.0f64.min(fs / 2.0)),
+                (lo.floor(), hi.ceil()),
+            );
+            c.line(&pts, "#1f5fa8", 1.5);
+            c.vline(3.0, "#999");
+            c.vline(25.0f64.min(fs / 2.0), "#999");
+            c.render()
+        }
+        Err(_) => String::new(),
+    };
+    (time, spec)
+}
+
+/// The self-contained HTML page.
+pub fn html(d: &ReportData) -> String {
+    let mut s = String::new();
+    let color = match d.verdict.condition.as_str() {
+        "replace" => "#c0262d",
+        "inspect" => "#d9822b",
+        "ok" => "#2e8540",
+        _ => "#666666",
+    };
+    let label = match d.verdict.condition.as_str() {
+        "replace" => "REPLACE JOINTS",
+        "inspect" => "INSPECT NOW",
+        "ok" => "OK",
+        _ => "NOT ENOUGH DATA",
+    };
+    let _ = write!(
+        s,
+        r#"<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>Steering joint inspection report</title>
+<style>
+body{{font-family:sans-serif;max-width:980px;margin:24px auto;padding:0 16px;color:#222}}
+h1{{font-size:22px;margin-bottom:4px}} h2{{font-size:18px;border-bottom:1px solid #ccc;padding-bottom:4px;margin-top:28px}}
+.verdict{{border:3px solid {color};border-radius:8px;padding:14px 18px;margin:16px 0}}
+.badge{{display:inline-block;background:{color};color:white;font-weight:bold;padding:4px 10px;border-radius:4px;font-size:18px}}
+.headline{{font-size:18px;margin:10px 0 6px}}
+table{{border-collapse:collapse;font-size:13px;width:100%}} th,td{{border:1px solid #ccc;padding:3px 6px;text-align:right}} th{{background:#f2f2f2}}
+td.l,th.l{{text-align:left}} .small{{color:#555;font-size:13px}} .alert{{background:#fff4f0;border-left:4px solid {color};padding:8px 12px;margin:8px 0}}
+.pair{{display:flex;flex-wrap:wrap;gap:8px}} svg{{max-width:100%;height:auto}}
+</style></head><body>
+<h1>Steering joint inspection report</h1><div class="small">shimmy-monitor · source: {src}{odo}</div>"#,
+        src = esc(&d.source),
+        odo = d.odometer_km.map_or(String::new(), |o| format!(
+            " · distance recorded by the monitor: {o:.1} km"
+        )),
+    );
+    // Verdict.
+    let est = d.verdict.estimate.as_ref();
+    let clearance = match est {
+        Some(e) if e.detectable => format!(
+            "<b>{}</b> mm (90 % interval {} – {} mm)",
+            opt(e.clearance_mm, 3),
+            opt(e.interval_mm.map(|i| i[0]), 3),
+            opt(e.interval_mm.map(|i| i[1]), 3)
+        ),
+        Some(e) if e.below_mm.is_some() => format!(
+            "below the detection limit: <b>below {} mm</b>",
+            opt(e.below_mm, 2)
+        ),
+        _ => "not estimated".into(),
+    };
+    let _ = write!(
+        s,
+        r#"<div class="verdict"><span class="badge">{label}</span><div class="headline">{h}</div>
+<div>Estimated clearance: {clearance}{p}{n}</div></div>"#,
+        h = esc(&d.verdict.headline),
+        p = est
+            .and_then(|e| e.p_above)
+            .map_or(String::new(), |p| format!(
+                " · probability above 0.1 mm: {:.0} %",
+                p * 100.0
+            )),
+        n = est.map_or(String::new(), |e| format!(
+            " · from {} braking events",
+            e.events_used
+        )),
+    );
+    for a in &d.open_alerts {
+        let _ = write!(
+            s,
+            r#"<div class="alert"><b>Alert #{} {}</b> (raised {}, at {:.1} km; updated {} times): {}<br><span class="small">{}</span></div>"#,
+            a.id,
+            a.kind.as_str(),
+            when(a.t_raised),
+            a.odometer_km_raised,
+            a.updates,
+            esc(&a.summary),
+            esc(&a.guidance)
+        );
+    }
+    s.push_str("<h2>Trend over distance</h2>");
+    if d.trend.is_empty() {
+        s.push_str("<p class=\"small\">No clearance estimates recorded.</p>");
+    } else {
+        s.push_str(&trend_svg(d));
+    }
+    s.push_str("<h2>Evidence: the braking events with the strongest shimmy</h2>");
+    if d.worst.is_empty() {
+        s.push_str("<p class=\"small\">No braking event with a measured amplitude.</p>");
+    }
+    for (i, w) in d.worst.iter().enumerate() {
+        let e = &w.event;
+        let _ = write!(
+            s,
+            r#"<p><b>#{}</b> {} for {:.1} s, from {:.1} km/h at {:.2} g: amplitude {} deg (band-passed peak {} deg){}</p>"#,
+            i + 1,
+            when(e.t_start),
+            e.t_end - e.t_start,
+            e.v0_kmh,
+            e.decel_g,
+            opt(e.sw_amplitude_deg, 3),
+            opt(e.peak_sw_bp_deg, 3),
+            if e.used {
+                ""
+            } else {
+                " — not used for the estimate"
+            }
+        );
+        let (t, f) = trace_svgs(w, i + 1);
+        if t.is_empty() {
+            s.push_str("<p class=\"small\">No steering trace recorded for this event.</p>");
+        } else {
+            let _ = write!(
+                s,
+                r#"<div class="pair">{t}{f}</div><p class="small">Grey: measured angle; red: 3–25 Hz band-pass (MODEL.md §11); dashed: brake onset and end of the event; the trace starts 1 s before the onset.</p>"#
+            );
+        }
+    }
+    s.push_str("<h2>All braking events</h2><table><tr><th>#</th><th class=\"l\">start</th><th>duration (s)</th><th>speed (km/h)</th><th>decel (g)</th><th>amplitude (deg)</th><th>peak 3–25 Hz (deg)</th><th>odometer (km)</th><th class=\"l\">used</th></tr>");
+    for (i, e) in d.events.iter().enumerate() {
+        let _ = write!(
+            s,
+            r#"<tr><td>{}</td><td class="l">{}</td><td>{:.2}</td><td>{:.1}</td><td>{:.2}</td><td>{}</td><td>{}</td><td>{:.2}</td><td class="l">{}</td></tr>"#,
+            i + 1,
+            when(e.t_start),
+            e.t_end - e.t_start,
+            e.v0_kmh,
+            e.decel_g,
+            opt(e.sw_amplitude_deg, 3),
+            opt(e.peak_sw_bp_deg, 3),
+            e.odometer_km,
+            if e.used {
+                "yes".to_string()
+            } else {
+                format!("no ({})", esc(e.unused_reason.as_deref().unwrap_or("")))
+            }
+        );
+    }
+    s.push_str("</table>");
+    s.push_str("<h2>Maintenance guidance (source study's conclusions)</h2><ul>");
+    for g in &d.guidance {
+        let _ = write!(s, "<li>{}</li>", esc(g));
+    }
+    s.push_str("</ul><h2>Data quality</h2><p class=\"small\">");
+    match &d.counters {
+        Some(c) => {
+            let _ = write!(s, "Last run: {}", esc(&c.to_string()));
+        }
+        None => s.push_str("No counters recorded."),
+    }
+    if d.journal_invalid_lines > 0 {
+        let _ = write!(
+            s,
+            " · {} corrupt journal line(s) skipped",
+            d.journal_invalid_lines
+        );
+    }
+    s.push_str("</p></body></html>\n");
+    s
+}

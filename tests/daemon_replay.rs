@@ -1,0 +1,247 @@
+//! shimmyd end to end as a process: replay of the real RAV4 log (no braking: no events, no
+//! alerts, counters reported), state persisted and resumed across runs, SIGTERM mid-replay
+//! stops cleanly with the journal closed and the state saved.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use shimmy::journal::Reader;
+
+fn workspace() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn write_config(dir: &Path, dbc: &Path, mapping: &Path) -> PathBuf {
+    let p = dir.join("shimmyd.toml");
+    std::fs::write(
+        &p,
+        format!(
+            "[input]\ndbc = {:?}\nmapping = {:?}\n[outputs]\njournal_dir = \"journal\"\nstate_dir = \"state\"\n[log]\ncounters_interval_s = 1\n",
+            dbc, mapping
+        ),
+    )
+    .unwrap();
+    p
+}
+
+fn records(dir: &Path) -> Vec<serde_json::Value> {
+    let mut r = Reader::open(dir).unwrap();
+    let v: Vec<_> = (&mut r).map(|e| e.unwrap().rec).collect();
+    assert_eq!(r.invalid_lines(), 0, "{:?}", r.problems());
+    v
+}
+
+fn rav4() -> Option<(PathBuf, PathBuf)> {
+    let log = shimmy::shared_data::require_file("logs/comma2k19-rav4/rav4_2017_seg40_bus0.log")?;
+    let dbc = shimmy::shared_data::require_file("dbc/opendbc/toyota_new_mc_pt_generated.dbc")?;
+    Some((log, dbc))
+}
+
+#[test]
+fn rav4_log_raises_nothing_reports_counters_and_state_resumes() {
+    let Some((log, dbc)) = rav4() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write_config(
+        dir.path(),
+        &dbc,
+        &workspace().join("config/mappings/toyota_rav4.toml"),
+    );
+    let run = || {
+        let out = Command::new(env!("CARGO_BIN_EXE_shimmyd"))
+            .arg("--config")
+            .arg(&cfg)
+            .arg("--replay")
+            .arg(&log)
+            .arg("--fast")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(out.status.success(), "{err}");
+        err
+    };
+    let err = run();
+    assert!(
+        err.contains("stopped: frames=53800 decode_errors=0 invalid_messages=0 events=0"),
+        "{err}"
+    );
+    let recs = records(&dir.path().join("journal"));
+    let types: Vec<&str> = recs.iter().map(|r| r["type"].as_str().unwrap()).collect();
+    assert_eq!(types, ["start", "stop"], "no event, no alert");
+    let stop = &recs[1];
+    assert_eq!(stop["counters"]["frames"], 53800);
+    let steer = stop["messages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|m| m["name"] == "STEER_ANGLE_SENSOR")
+        .unwrap();
+    assert_eq!(steer["accepted"], 4974);
+    let odo1 = stop["odometer_km"].as_f64().unwrap();
+    // About a minute of driving: the odometer moved, by a plausible amount.
+    assert!(odo1 > 0.3 && odo1 < 3.0, "odometer {odo1} km");
+    let state: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("state/state.json")).unwrap())
+            .unwrap();
+    assert_eq!(state["odometer_km"].as_f64(), Some(odo1));
+
+    // Second run resumes the state: the odometer continues, the journal continues.
+    run();
+    let recs = records(&dir.path().join("journal"));
+    assert_eq!(recs.len(), 4);
+    assert_eq!(recs[2]["resumed_state"], true);
+    assert_eq!(recs[2]["odometer_km"].as_f64(), Some(odo1));
+    let odo2 = recs[3]["odometer_km"].as_f64().unwrap();
+    assert!((odo2 - 2.0 * odo1).abs() < 1e-6, "{odo2} vs 2 x {odo1}");
+}
+
+#[test]
+fn sigterm_mid_replay_stops_cleanly() {
+    let Some((log, dbc)) = rav4() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write_config(
+        dir.path(),
+        &dbc,
+        &workspace().join("config/mappings/toyota_rav4.toml"),
+    );
+    // Recorded timing: the log lasts about a minute, so the daemon is still running when told
+    // to stop.
+    let child = Command::new(env!("CARGO_BIN_EXE_shimmyd"))
+        .arg("--config")
+        .arg(&cfg)
+        .arg("--replay")
+        .arg(&log)
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(1500));
+    let t0 = Instant::now();
+    let st = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        t0.elapsed() < Duration::from_secs(5),
+        "took {:?} to stop",
+        t0.elapsed()
+    );
+    assert!(err.contains("SIGTERM: stopping"), "{err}");
+    // The periodic counters line (interval 1 s in this config) was logged while running.
+    assert!(err.contains("last 1 s: frames="), "{err}");
+    let recs = records(&dir.path().join("journal"));
+    let stop = recs.last().unwrap();
+    assert_eq!(stop["type"], "stop");
+    let frames = stop["counters"]["frames"].as_u64().unwrap();
+    assert!(
+        frames > 100 && frames < 53800,
+        "replayed {frames} frames before SIGTERM"
+    );
+    assert!(dir.path().join("state/state.json").is_file());
+}
+
+#[test]
+fn corrupt_state_is_moved_aside_and_reported() {
+    let Some((log, dbc)) = rav4() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write_config(
+        dir.path(),
+        &dbc,
+        &workspace().join("config/mappings/toyota_rav4.toml"),
+    );
+    std::fs::create_dir_all(dir.path().join("state")).unwrap();
+    std::fs::write(
+        dir.path().join("state/state.json"),
+        b"{\"odometer_km\": 12.5, \"ev",
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_shimmyd"))
+        .args([
+            "--config".as_ref(),
+            cfg.as_os_str(),
+            "--fast".as_ref(),
+            "--replay".as_ref(),
+            log.as_os_str(),
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("did not parse") && err.contains("state.json.bad-"),
+        "{err}"
+    );
+    let aside = std::fs::read_dir(dir.path().join("state"))
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .starts_with("state.json.bad-")
+        })
+        .count();
+    assert_eq!(aside, 1);
+}
+
+#[test]
+fn sighup_reloads_alerts_and_keeps_running_config_when_broken() {
+    let Some((log, dbc)) = rav4() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write_config(
+        dir.path(),
+        &dbc,
+        &workspace().join("config/mappings/toyota_rav4.toml"),
+    );
+    let good = std::fs::read_to_string(&cfg).unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_shimmyd"))
+        .arg("--config")
+        .arg(&cfg)
+        .arg("--replay")
+        .arg(&log)
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let signal = |sig: &str| {
+        assert!(Command::new("kill")
+            .args([sig, &child.id().to_string()])
+            .status()
+            .unwrap()
+            .success())
+    };
+    std::thread::sleep(Duration::from_millis(800));
+    std::fs::write(
+        &cfg,
+        good.replace("[log]", "[alerts]\nshimmy_deg = -1\n[log]"),
+    )
+    .unwrap();
+    signal("-HUP");
+    std::thread::sleep(Duration::from_millis(600));
+    std::fs::write(
+        &cfg,
+        good.replace("[log]", "[alerts]\nshimmy_deg = 0.3\n[log]"),
+    )
+    .unwrap();
+    signal("-HUP");
+    std::thread::sleep(Duration::from_millis(600));
+    signal("-TERM");
+    let status = child.wait().unwrap();
+    let mut err = String::new();
+    std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut err).unwrap();
+    assert!(status.success(), "{err}");
+    assert!(
+        err.contains("SIGHUP: configuration not reloaded")
+            && err.contains("alerts.shimmy_deg: must be > 0"),
+        "{err}"
+    );
+    assert!(err.contains("SIGHUP: configuration reloaded"), "{err}");
+    let recs = records(&dir.path().join("journal"));
+    let reload = recs
+        .iter()
+        .find(|r| r["type"] == "reload")
+        .expect("reload journaled");
+    assert_eq!(reload["alerts"]["shimmy_deg"], 0.3);
+}

@@ -1,0 +1,85 @@
+//! The stepping API firmware-sim relies on: `Simulator::step` allocates nothing (counted with a
+//! global allocator), and an external longitudinal demand drives whole drive cycles.
+
+use shimmy::model::{Integrator, Scenario, Simulator, VehicleParams};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+struct Counting;
+static ALLOCS: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        unsafe { System.alloc(l) }
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        unsafe { System.dealloc(p, l) }
+    }
+}
+
+#[global_allocator]
+static A: Counting = Counting;
+
+#[test]
+fn step_and_outputs_do_not_allocate() {
+    let p = VehicleParams::default();
+    for integrator in [Integrator::Rk4, Integrator::Rk4WarmSlip] {
+        let sc = Scenario {
+            integrator,
+            ..Scenario::default()
+        };
+        let mut sim = Simulator::new(&p, &sc).unwrap();
+        let before = ALLOCS.load(Ordering::Relaxed);
+        let mut acc = 0.0;
+        for k in 0..20_000 {
+            sim.step();
+            if k % 10 == 0 {
+                acc += sim.outputs().contact_fx_n[0];
+            }
+            if k == 12_000 {
+                sim.set_decel_demand(3.0);
+            }
+        }
+        let after = ALLOCS.load(Ordering::Relaxed);
+        assert!(acc.is_finite());
+        assert_eq!(
+            after - before,
+            0,
+            "{integrator:?}: allocations in the step loop"
+        );
+    }
+}
+
+#[test]
+fn external_demand_drives_cruise_brake_and_acceleration() {
+    let p = VehicleParams::default();
+    let sc = Scenario {
+        v0_mps: 20.0,
+        ..Scenario::default()
+    };
+    let mut sim = Simulator::new(&p, &sc).unwrap();
+    let steps = |sim: &mut Simulator, n: usize| {
+        for _ in 0..n {
+            sim.step();
+        }
+    };
+    sim.set_decel_demand(0.0); // cruise: the §6 event must no longer apply
+    steps(&mut sim, 10_000);
+    assert!((sim.outputs().speed_mps - 20.0).abs() < 1e-9);
+    sim.set_decel_demand(4.0); // brake 1 s at 4 m/s²
+    steps(&mut sim, 10_000);
+    let o = sim.outputs();
+    assert!((o.speed_mps - 16.0).abs() < 1e-6, "{}", o.speed_mps);
+    assert!(o.tire_fx_n[0] > 0.0 && o.decel_filtered_mps2 > 2.0);
+    sim.set_decel_demand(-2.0); // accelerate 1 s (front-wheel drive: negative F_x)
+    steps(&mut sim, 10_000);
+    let o = sim.outputs();
+    assert!((o.speed_mps - 18.0).abs() < 1e-6, "{}", o.speed_mps);
+    assert!(o.tire_fx_n[0] < 0.0);
+    sim.set_decel_demand(8.0); // brake to a standstill: fades, never reverses
+    steps(&mut sim, 40_000);
+    let v = sim.outputs().speed_mps;
+    assert!((0.0..0.01).contains(&v), "{v}");
+    assert!((sim.t() - 7.0).abs() < 1e-9);
+}
