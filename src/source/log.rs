@@ -312,6 +312,9 @@ impl CanSource for LogReader {
         }
     }
 
+    // `#[inline]` lets callers in other crates (benchmarks, the daemon) inline the hot path;
+    // the general path stays in the out-of-line `read_frame_slow`.
+    #[inline]
     fn read_frame(&mut self, out: &mut Frame) -> io::Result<bool> {
         // Candump hot path: parse the common line shape straight out of the read buffer into
         // `out`. Anything else (comments, DROPCOUNT, errors, CAN XL, a line spanning a refill,
@@ -322,6 +325,22 @@ impl CanSource for LogReader {
                 return Ok(true);
             }
         }
+        self.read_frame_slow(out)
+    }
+
+    fn stats(&self) -> SourceStats {
+        self.stats.clone()
+    }
+
+    fn take_skips(&mut self) -> Vec<Skip> {
+        std::mem::take(&mut self.skips)
+    }
+}
+
+impl LogReader {
+    /// Everything but the candump fast path: one line or record at a time until a frame.
+    #[inline(never)]
+    fn read_frame_slow(&mut self, out: &mut Frame) -> io::Result<bool> {
         loop {
             match self.step(out)? {
                 Step::Frame => {
@@ -348,13 +367,5 @@ impl CanSource for LogReader {
                 Step::End => return Ok(false),
             }
         }
-    }
-
-    fn stats(&self) -> SourceStats {
-        self.stats.clone()
-    }
-
-    fn take_skips(&mut self) -> Vec<Skip> {
-        std::mem::take(&mut self.skips)
     }
 }
