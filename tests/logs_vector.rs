@@ -365,3 +365,28 @@ fn truncated_blf_is_reported_not_fatal() {
     assert_eq!(r.stats().malformed, 1);
     assert!(r.take_skips()[0].reason.contains("truncated"));
 }
+
+/// A CAN FD object whose valid-byte count is not a CAN FD length (19) is an inconsistent
+/// object: counted and reported as malformed, never delivered as a frame no bus can carry
+/// (found by `logs_fuzz`, case saved in `logs_fuzz.proptest-regressions`).
+#[test]
+fn blf_fd_object_with_impossible_length_is_reported() {
+    let fd = |valid: u8| {
+        let mut b = vec![1, 0, 0, 11];
+        b.extend_from_slice(&0x100u32.to_le_bytes());
+        b.extend_from_slice(&[0; 4]);
+        b.extend_from_slice(&[0, 0x1, valid, 0, 0, 0, 0, 0]);
+        b.extend((0..64).map(|i| i as u8));
+        obj(100, 1, 2, 1_000, &b)
+    };
+    let mut file = header(None);
+    file.extend(container(&[fd(19), fd(20)].concat(), true));
+    let mut r = LogReader::from_reader(std::io::Cursor::new(file), "fd.blf").unwrap();
+    let f = read_all(&mut r);
+    assert_eq!(f.len(), 1);
+    assert_eq!((f[0].len, f[0].dlc, f[0].data[19]), (20, 11, 19));
+    let st = r.stats();
+    assert_eq!((st.frames, st.malformed), (1, 1));
+    let skips = r.take_skips();
+    assert!(skips[0].reason.contains("19 valid data bytes"), "{skips:?}");
+}

@@ -246,7 +246,9 @@ pub fn decode_source<W: Write>(
     summary: &mut Summary,
 ) -> io::Result<()> {
     let names = Names::new(db, opts.format);
-    while let Some(frame) = source.next_frame()? {
+    // One reused frame, filled in place by the source (see `CanSource::read_frame`).
+    let mut frame = Frame::empty(0);
+    while source.read_frame(&mut frame)? {
         summary.frames += 1;
         decode_frame(db, &names, &frame, out, opts, summary)?;
     }

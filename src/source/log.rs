@@ -90,7 +90,8 @@ pub struct LogReader {
     skips: Vec<Skip>,
     reported: usize,
     max_reports: usize,
-    last_t: Option<i64>,
+    /// Timestamp of the last delivered frame (`i64::MIN` before the first).
+    last_t: i64,
     /// An empty frame with the last interface name: `next_frame` starts from it (keeps the
     /// candump fast path's interface-name cache warm).
     scratch: Frame,
@@ -167,7 +168,7 @@ impl LogReader {
             skips: Vec::new(),
             reported: 0,
             max_reports: DEFAULT_MAX_REPORTS,
-            last_t: None,
+            last_t: i64::MIN,
             scratch: Frame::empty(0),
         }
     }
@@ -291,12 +292,10 @@ impl LogReader {
         if kind == FrameKind::Error {
             self.stats.error_frames += 1;
         }
-        if let Some(last) = self.last_t {
-            if t_ns < last {
-                self.stats.backwards_timestamps += 1;
-            }
+        if t_ns < self.last_t {
+            self.stats.backwards_timestamps += 1;
         }
-        self.last_t = Some(t_ns);
+        self.last_t = t_ns;
     }
 }
 
@@ -313,7 +312,35 @@ impl CanSource for LogReader {
         }
     }
 
+    // `#[inline]` lets callers in other crates (benchmarks, the daemon) inline the hot path;
+    // the general path stays in the out-of-line `read_frame_slow`.
+    #[inline]
     fn read_frame(&mut self, out: &mut Frame) -> io::Result<bool> {
+        // Candump hot path: parse the common line shape straight out of the read buffer into
+        // `out`. Anything else (comments, DROPCOUNT, errors, CAN XL, a line spanning a refill,
+        // end of input) falls through to the general step below, which sees the same line.
+        if let Kind::Candump(lines) = &mut self.kind {
+            if lines.try_parse_next(|l| candump::parse_common_into(l, out)) {
+                self.count(out.kind, out.t_ns);
+                return Ok(true);
+            }
+        }
+        self.read_frame_slow(out)
+    }
+
+    fn stats(&self) -> SourceStats {
+        self.stats.clone()
+    }
+
+    fn take_skips(&mut self) -> Vec<Skip> {
+        std::mem::take(&mut self.skips)
+    }
+}
+
+impl LogReader {
+    /// Everything but the candump fast path: one line or record at a time until a frame.
+    #[inline(never)]
+    fn read_frame_slow(&mut self, out: &mut Frame) -> io::Result<bool> {
         loop {
             match self.step(out)? {
                 Step::Frame => {
@@ -340,13 +367,5 @@ impl CanSource for LogReader {
                 Step::End => return Ok(false),
             }
         }
-    }
-
-    fn stats(&self) -> SourceStats {
-        self.stats.clone()
-    }
-
-    fn take_skips(&mut self) -> Vec<Skip> {
-        std::mem::take(&mut self.skips)
     }
 }

@@ -22,7 +22,7 @@
 //! Not here: counting or reporting skips ([`crate::source::log`]).
 
 use super::asc::{days_from_civil, CAN_ERR_PROT};
-use super::frame::{fd_len_to_dlc, Frame, FrameKind, IfaceName};
+use super::frame::{fd_dlc_to_len, fd_len_to_dlc, Frame, FrameKind, IfaceName};
 use flate2::{Decompress, FlushDecompress, Status};
 use std::io::{self, Read};
 
@@ -68,6 +68,8 @@ pub enum BlfError {
     MissingPayload { declared: usize, present: usize },
     #[error("CAN object DLC {0} is out of range (0-15)")]
     Dlc(u8),
+    #[error("CAN FD object declares {0} valid data bytes, which no CAN FD frame has (0-8, 12, 16, 20, 24, 32, 48 or 64)")]
+    FdLength(usize),
     #[error("unknown object header version {0}")]
     HeaderVersion(u16),
 }
@@ -553,6 +555,11 @@ impl<R: Read> BlfReader<R> {
         }
         let max = if f.fd { 64 } else { 8 };
         let len = valid.min(max).min(payload.len());
+        // A CAN FD frame carries one of 16 lengths; any other count of valid bytes (e.g. 19)
+        // is an inconsistent object, reported rather than delivered as a frame no bus can carry.
+        if f.fd && fd_dlc_to_len(fd_len_to_dlc(len)) != len {
+            return Err(BlfError::FdLength(len));
+        }
         f.data[..len].copy_from_slice(&payload[..len]);
         f.len = len as u8;
         f.dlc = if f.fd {
