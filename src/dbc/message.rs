@@ -55,6 +55,11 @@ pub(crate) struct Hot {
     mask: u64,
     factor: f64,
     offset: f64,
+    /// Index into `[le, be]` of the word the signal is read from.
+    word_sel: u8,
+    /// Sign-extension shift pair for the integer path: `64 - size` for signed, 0 for unsigned.
+    sext: u8,
+    signed: bool,
 }
 
 impl Hot {
@@ -78,6 +83,23 @@ impl Hot {
             mask: l.mask,
             factor: s.factor,
             offset: s.offset,
+            word_sel: (l.order == ByteOrder::BigEndian) as u8,
+            sext: if s.kind == ValueKind::Signed {
+                64 - l.size
+            } else {
+                0
+            },
+            signed: s.kind == ValueKind::Signed,
+        }
+    }
+
+    /// Whether the branch-free integer path applies: signed, or unsigned below 64 bits (so the
+    /// raw bits fit an `i64` and convert to `f64` exactly as the `u64` would).
+    fn int_path(&self) -> bool {
+        match self.kind {
+            ValueKind::Signed => true,
+            ValueKind::Unsigned => self.sign_shift > 0,
+            ValueKind::Float32 | ValueKind::Float64 => false,
         }
     }
 
@@ -120,6 +142,10 @@ pub struct Message {
     hot: Vec<Hot>,
     /// Every signal lies within the first 8 bytes (the one-word fast path applies).
     within_8: bool,
+    /// Every signal takes the branch-free integer path (see `Hot::int_path`).
+    int_words: bool,
+    /// Payload length that holds every signal.
+    max_needed: usize,
 }
 
 /// Whether a signal is present in a given payload.
@@ -147,6 +173,8 @@ impl Message {
             multiplexed: false,
             hot: Vec::new(),
             within_8: true,
+            int_words: true,
+            max_needed: 0,
         }
     }
 
@@ -211,6 +239,13 @@ impl Message {
         self.multiplexed = self.signals.iter().any(|s| s.multiplexer.is_some());
         self.hot = self.signals.iter().map(Hot::new).collect();
         self.within_8 = self.signals.iter().all(|s| s.needed_len() <= 8);
+        self.int_words = self.hot.iter().all(Hot::int_path);
+        self.max_needed = self
+            .signals
+            .iter()
+            .map(|s| s.needed_len())
+            .max()
+            .unwrap_or(0);
         Ok(())
     }
 
@@ -275,6 +310,24 @@ impl Message {
             let n = data.len().min(8);
             buf[..n].copy_from_slice(&data[..n]);
             let (le, be) = (u64::from_le_bytes(buf), u64::from_be_bytes(buf));
+            if self.int_words && data.len() >= self.max_needed {
+                // Every signal fits and is an integer: no per-signal length check and no
+                // branch on byte order or value kind (word picked by index, sign extension by
+                // a shift pair that is 0 for unsigned signals).
+                let words = [le, be];
+                for (i, h) in self.hot.iter().enumerate() {
+                    let bits = (words[(h.word_sel & 1) as usize] >> h.word_shift) & h.mask;
+                    let v = ((bits << h.sext) as i64) >> h.sext;
+                    let raw = if h.signed {
+                        RawValue::Signed(v)
+                    } else {
+                        RawValue::Unsigned(bits)
+                    };
+                    f(i, raw, v as f64 * h.factor + h.offset);
+                }
+                sum.decoded += self.hot.len() as u16;
+                return Ok(sum);
+            }
             for (i, h) in self.hot.iter().enumerate() {
                 if h.needed as usize > data.len() {
                     sum.truncated += 1;

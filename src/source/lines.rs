@@ -73,6 +73,26 @@ impl<R: Read> LineReader<R> {
         }
     }
 
+    /// Faster variant of [`LineReader::try_parse_next`] for parsers that find the line end
+    /// themselves: `parse` gets every buffered byte from the start of the next line and returns
+    /// how many bytes that line takes including its `\n` (at least 1, only bytes of one whole
+    /// line), or `None` to consume nothing. Saves the separate newline search.
+    #[inline]
+    pub fn try_parse_prefix(&mut self, parse: impl FnOnce(&[u8]) -> Option<usize>) -> bool {
+        if self.discarding {
+            return false;
+        }
+        match parse(&self.buf[self.start..self.end]) {
+            Some(used) => {
+                debug_assert!(used >= 1 && self.buf[self.start + used - 1] == b'\n');
+                self.start += used;
+                self.line_no += 1;
+                true
+            }
+            None => false,
+        }
+    }
+
     /// The next line, or `None` at end of input.
     pub fn next_line(&mut self) -> io::Result<Option<Line<'_>>> {
         loop {

@@ -320,7 +320,9 @@ impl CanSource for LogReader {
         // `out`. Anything else (comments, DROPCOUNT, errors, CAN XL, a line spanning a refill,
         // end of input) falls through to the general step below, which sees the same line.
         if let Kind::Candump(lines) = &mut self.kind {
-            if lines.try_parse_next(|l| candump::parse_common_into(l, out)) {
+            if lines.try_parse_prefix(|b| candump::parse_common_prefix(b, out))
+                || lines.try_parse_next(|l| candump::parse_common_into(l, out))
+            {
                 self.count(out.kind, out.t_ns);
                 return Ok(true);
             }

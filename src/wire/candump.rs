@@ -343,6 +343,131 @@ pub fn parse_common_into(line: &[u8], out: &mut Frame) -> bool {
     true
 }
 
+/// [`parse_common_into`] for a line at the start of a read buffer whose end is not yet known:
+/// the line end (`\n`, optionally preceded by one `\r`) is found while the data field is
+/// scanned, so the caller needs no separate search for it. Returns the number of bytes the line
+/// takes including its `\n`, with `out` holding exactly what [`parse_common_into`] would give
+/// for that line. Returns `None` (with `out` unspecified) whenever it cannot show that: any line
+/// `parse_common_into` rejects, a new interface name, or a buffer that ends before the `\n`;
+/// the caller then falls back to finding the line end and using the line-based parsers.
+#[inline]
+pub fn parse_common_prefix(s: &[u8], out: &mut Frame) -> Option<usize> {
+    let n = s.len();
+    if n < 18 || s[0] != b'(' {
+        return None;
+    }
+    let mut i = 1;
+    let mut sec: i64 = 0;
+    loop {
+        let d = s[i].wrapping_sub(b'0');
+        if d > 9 {
+            break;
+        }
+        sec = sec * 10 + d as i64;
+        i += 1;
+        if i > 13 {
+            return None;
+        }
+    }
+    if i == 1 || s[i] != b'.' {
+        return None;
+    }
+    i += 1;
+    if i + 11 > n {
+        return None;
+    }
+    let fstart = i;
+    let mut frac: i64 = 0;
+    loop {
+        let d = s[i].wrapping_sub(b'0');
+        if d > 9 || i - fstart == 9 {
+            break;
+        }
+        frac = frac * 10 + d as i64;
+        i += 1;
+    }
+    let frac_ns = match i - fstart {
+        6 => frac * 1000,
+        9 => frac,
+        _ => return None,
+    };
+    if s[i] != b')' || s[i + 1] != b' ' {
+        return None;
+    }
+    let t_ns = sec.checked_mul(1_000_000_000)?.checked_add(frac_ns)?;
+    i += 2;
+    // Interface name: only the one already in `out` (it holds no space, tab or newline); a
+    // different name goes through the line-based parser, which validates it.
+    let name = out.iface.as_bytes();
+    if name.is_empty() || s.get(i..i + name.len())? != name || *s.get(i + name.len())? != b' ' {
+        return None;
+    }
+    i += name.len() + 1;
+    let fr = &s[i..];
+    let (id, extended, mut p) = if fr.len() >= 4 && fr[3] == b'#' {
+        let (d0, d1, d2) = (
+            HEX[fr[0] as usize],
+            HEX[fr[1] as usize],
+            HEX[fr[2] as usize],
+        );
+        let v = (d0 as u32) << 8 | (d1 as u32) << 4 | d2 as u32;
+        if (d0 | d1 | d2) & 0xF0 != 0 || v > 0x7FF {
+            return None;
+        }
+        (v, false, i + 4)
+    } else if fr.len() >= 9 && fr[8] == b'#' {
+        let mut v: u32 = 0;
+        let mut bad: u8 = 0;
+        for &b in &fr[..8] {
+            let d = HEX[b as usize];
+            bad |= d;
+            v = (v << 4) | (d & 0x0F) as u32;
+        }
+        if bad & 0xF0 != 0 || v & !CAN_ERR_MASK != 0 {
+            return None;
+        }
+        (v, true, i + 9)
+    } else {
+        return None;
+    };
+    // Data: hex pairs up to the line end; at most 8 bytes.
+    let mut bytes = [0u8; 8];
+    let mut len = 0;
+    loop {
+        let hi = HEX[*s.get(p)? as usize];
+        if hi & 0xF0 != 0 {
+            break;
+        }
+        let lo = HEX[*s.get(p + 1)? as usize];
+        if lo & 0xF0 != 0 || len == 8 {
+            return None;
+        }
+        bytes[len] = (hi << 4) | lo;
+        len += 1;
+        p += 2;
+    }
+    if s[p] == b'\r' {
+        p += 1;
+    }
+    if *s.get(p)? != b'\n' {
+        return None;
+    }
+    if out.len > 8 {
+        out.data[8..].fill(0);
+    }
+    out.data[..8].copy_from_slice(&bytes);
+    out.t_ns = t_ns;
+    out.id = id;
+    out.extended = extended;
+    out.kind = FrameKind::Data;
+    out.fd = false;
+    out.brs = false;
+    out.esi = false;
+    out.len = len as u8;
+    out.dlc = len as u8;
+    Some(p + 1)
+}
+
 /// The full grammar (every frame kind, precise errors); [`parse_line`] without the fast path.
 pub fn parse_line_full(line: &[u8]) -> Result<Parsed, CandumpError> {
     let mut end = line.len();
@@ -1020,6 +1145,66 @@ mod tests {
         assert!(
             accepted > 1000,
             "fast path accepted only {accepted} variants"
+        );
+    }
+
+    /// The buffer-prefix parser agrees with the line parser: on every variant (followed by a
+    /// next line, and cut short) it either declines or consumes exactly the line and its `\n`
+    /// and yields exactly the frame `parse_common_into` gives; and it does take the common
+    /// lines when the interface name is already known.
+    #[test]
+    fn prefix_parser_agrees_with_line_parser() {
+        let seeds: [&[u8]; 5] = [
+            b"(46408.584930) can0 260#08FFFB0000001884",
+            b"(1700000000.123456789) can0 1FFFFFFF#0102\r",
+            b"(0.000001) can0 000#",
+            b"(12.000000) can0 00000123#de",
+            b"(12.000000) can0 123#de.ad",
+        ];
+        let subst = b"0189aAfFgG#._ \t\r\n()R-\xff";
+        let mut variants: Vec<Vec<u8>> = Vec::new();
+        for seed in seeds {
+            variants.push(seed.to_vec());
+            for i in 0..seed.len() {
+                for &b in subst {
+                    let mut v = seed.to_vec();
+                    v[i] = b;
+                    variants.push(v);
+                }
+                let mut v = seed.to_vec();
+                v.remove(i);
+                variants.push(v);
+            }
+        }
+        let mut prior = Frame::classic(1, 1, false, &[1; 8]).unwrap();
+        prior.set_iface("can0");
+        let mut taken = 0;
+        for v in &variants {
+            let mut buf = v.clone();
+            buf.extend_from_slice(b"\n(1.000000) can0 123#11\n");
+            for cut in [buf.len(), v.len() + 1, v.len()] {
+                let mut got = prior;
+                if let Some(used) = parse_common_prefix(&buf[..cut], &mut got) {
+                    taken += 1;
+                    let line_end = memchr::memchr(b'\n', &buf).unwrap();
+                    assert_eq!(used, line_end + 1, "line {:?}", String::from_utf8_lossy(v));
+                    let mut want = prior;
+                    assert!(parse_common_into(&buf[..line_end], &mut want));
+                    assert_eq!(got, want, "line {:?}", String::from_utf8_lossy(v));
+                }
+            }
+        }
+        assert!(taken > 200, "prefix parser took only {taken} lines");
+        let mut f = prior;
+        assert_eq!(
+            parse_common_prefix(b"(1.000000) can0 123#11\n", &mut f),
+            Some(23)
+        );
+        assert_eq!((f.id, f.len, f.data[0]), (0x123, 1, 0x11));
+        assert_eq!(parse_common_prefix(b"(1.000000) can0 123#11", &mut f), None);
+        assert_eq!(
+            parse_common_prefix(b"(1.000000) can1 123#11\n", &mut f),
+            None
         );
     }
 }
