@@ -182,6 +182,46 @@ proptest! {
         }
     }
 
+    /// Messages of several signals (the all-integer word path when every signal is an integer
+    /// fitting an `i64` and the payload holds them all; the per-signal path otherwise) deliver,
+    /// signal by signal, exactly what `Signal::raw` and the scaling give.
+    #[test]
+    fn multi_signal_decode_agrees_with_signal_raw(
+        sigs in proptest::collection::vec(
+            (kind_strategy(), 0u64..64, any::<bool>(), -4.0f64..4.0, -100.0f64..100.0),
+            1..6,
+        ),
+        data in proptest::collection::vec(any::<u8>(), 0..=8),
+    ) {
+        let mut m = shimmy::dbc::Message::new("M", 1, false, 8);
+        for (k, ((kind, size), start, big, factor, offset)) in sigs.iter().enumerate() {
+            let order = if *big { ByteOrder::BigEndian } else { ByteOrder::LittleEndian };
+            if let Ok(s) = Signal::new(&format!("s{k}"), *start, *size, order, *kind, *factor, *offset) {
+                if s.needed_len() <= 8 {
+                    m.signals.push(s);
+                }
+            }
+        }
+        let want: Vec<_> = m.signals.clone();
+        let db = Database::from_messages(vec![m]).unwrap();
+        let m = &db.messages()[0];
+        let mut got = Vec::new();
+        let s = m.decode(&data, |i, raw, phys| got.push((i, raw, phys))).unwrap();
+        let mut k = 0;
+        for (i, sig) in want.iter().enumerate() {
+            if let Some(raw) = sig.raw(&data) {
+                let (gi, graw, gphys) = got[k];
+                k += 1;
+                prop_assert_eq!(gi, i);
+                prop_assert!(same(graw, raw));
+                let p = sig.scale(raw);
+                prop_assert!(gphys.to_bits() == p.to_bits() || (gphys.is_nan() && p.is_nan()));
+            }
+        }
+        prop_assert_eq!(k, got.len());
+        prop_assert_eq!(s.decoded as usize + s.truncated as usize, want.len());
+    }
+
     #[test]
     fn decode_arbitrary_payload_never_panics(data in proptest::collection::vec(any::<u8>(), 0..=64)) {
         let (db, report) = Database::parse(MIXED);
