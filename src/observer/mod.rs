@@ -168,19 +168,7 @@ impl Observer {
         let Some(fin) = self.detector.push(s) else {
             return;
         };
-        let rec = fin.record;
-        let t0 = (rec.t_start_s * 1e9).round() as i64;
-        let t1 = ((rec.t_end_s + self.cfg.events.tail_s) * 1e9).round() as i64;
-        let feats = self
-            .extractor
-            .extract(
-                fin.samples,
-                t0,
-                t1,
-                self.cfg.features.sensor,
-                rec.quality.quant_step_deg,
-            )
-            .ok();
+        let (rec, feats) = Self::measure(&mut self.extractor, &self.cfg, fin);
         self.on_event(rec, feats);
     }
 
@@ -189,20 +177,30 @@ impl Observer {
         let Some(fin) = self.detector.flush() else {
             return;
         };
+        let (rec, feats) = Self::measure(&mut self.extractor, &self.cfg, fin);
+        self.on_event(rec, feats);
+    }
+
+    /// The features of a finished event over its braking window plus the configured tail
+    /// (MODEL.md §11). Takes the fields it needs, not `self`, because `fin` borrows the detector.
+    fn measure(
+        extractor: &mut Extractor,
+        cfg: &ObserverConfig,
+        fin: crate::events::Finished<'_>,
+    ) -> (crate::events::EventRecord, Option<Features>) {
         let rec = fin.record;
         let t0 = (rec.t_start_s * 1e9).round() as i64;
-        let t1 = ((rec.t_end_s + self.cfg.events.tail_s) * 1e9).round() as i64;
-        let feats = self
-            .extractor
+        let t1 = ((rec.t_end_s + cfg.events.tail_s) * 1e9).round() as i64;
+        let feats = extractor
             .extract(
                 fin.samples,
                 t0,
                 t1,
-                self.cfg.features.sensor,
+                cfg.features.sensor,
                 rec.quality.quant_step_deg,
             )
             .ok();
-        self.on_event(rec, feats);
+        (rec, feats)
     }
 
     /// The amplitude estimate for features `f` (deg).
