@@ -29,9 +29,9 @@ fn energy(m: &Model, y: &State, contact: bool) -> f64 {
         + 0.5 * m.k_eq * y[ix::X].powi(2)
         + 0.5 * m.i_t * y[ix::TH4D].powi(2);
     if contact {
-        for (delta, _) in m.penetrations(y) {
+        for (i, (delta, _)) in m.penetrations(y).into_iter().enumerate() {
             if delta > 0.0 {
-                e += 0.4 * m.joint.k * delta.powf(2.5);
+                e += 0.4 * m.joint[i].k * delta.powf(2.5);
             }
         }
     }
@@ -233,4 +233,62 @@ fn rk4_converges_with_order_four_on_a_smooth_case() {
             "state {k}: observed order {p:.2} ({d1:e}, {d2:e})"
         );
     }
+}
+
+#[test]
+fn unequal_clearances_break_the_mirror_symmetry_and_equal_ones_do_not() {
+    // Each joint has its own clearance (unequal wear, firmware-sim's L/R option). Setting the
+    // right clearance equal to the left must give the very same run; a larger right clearance
+    // must make the mirror-symmetric start of `mirror_run` asymmetric.
+    let p = VehicleParams::default();
+    let base = Scenario {
+        unbalance: false,
+        noise: false,
+        kick_theta1_rad_s: Some(0.05),
+        kick_theta2_rad_s: -0.05,
+        duration_s: 3.0,
+        ..Scenario::default()
+    };
+    let run = |sc: &Scenario| {
+        let mut sim = Simulator::new(&p, sc).unwrap();
+        let mut max_asym = 0.0f64;
+        for _ in 0..30_000 {
+            sim.step();
+            let y = sim.state();
+            max_asym = max_asym.max((y[ix::TH1] + y[ix::TH2]).abs());
+        }
+        (*sim.state(), max_asym)
+    };
+    let (y0, a0) = run(&base);
+    let same = Scenario {
+        clearance_right_m: Some(base.clearance_m),
+        ..base.clone()
+    };
+    let (y1, a1) = run(&same);
+    assert_eq!(y0, y1, "right = left must not change the run");
+    assert!(a0 == a1);
+    let unequal = Scenario {
+        clearance_right_m: Some(0.3e-3),
+        ..base.clone()
+    };
+    let (_, a2) = run(&unequal);
+    assert!(a2 > 1e3 * a0.max(1e-15), "asymmetry {a2:e} vs {a0:e}");
+
+    // The setter mid-run: back to equal clearances gives back a symmetric motion's structure
+    // (no error), and it refuses nonsense without changing the joints.
+    let mut sim = Simulator::new(&p, &unequal).unwrap();
+    assert_eq!(sim.clearance_m(), [0.1e-3, 0.3e-3]);
+    assert!(sim.set_clearance(f64::NAN, 0.1e-3).is_err());
+    assert!(sim.set_clearance(0.1e-3, -1.0).is_err());
+    assert_eq!(sim.clearance_m(), [0.1e-3, 0.3e-3]);
+    sim.set_clearance(0.12e-3, 0.15e-3).unwrap();
+    assert_eq!(sim.clearance_m(), [0.12e-3, 0.15e-3]);
+    assert!(Simulator::new(
+        &p,
+        &Scenario {
+            clearance_right_m: Some(0.0),
+            ..base
+        }
+    )
+    .is_err());
 }

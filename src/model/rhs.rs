@@ -108,11 +108,33 @@ pub struct Aux {
     pub column_torque: f64,
 }
 
+/// One clearance joint of radial clearance `clearance_m` with the §9 joint constants.
+pub fn clearance_joint(p: &VehicleParams, clearance_m: f64) -> ClearanceJoint {
+    let j = &p.joint;
+    ClearanceJoint {
+        c: clearance_m,
+        r_p: j.pin_radius_m,
+        r_b: j.pin_radius_m + clearance_m,
+        k: hertz_k(
+            j.young_modulus_pa,
+            j.poisson_ratio,
+            j.pin_radius_m,
+            clearance_m,
+        ),
+        ln_factor: 0.75 * (1.0 - j.restitution * j.restitution),
+        mu: j.friction,
+        v_eps: j.friction_reg_velocity_mps,
+        c_tan: j.tangential_damping_ns_per_m,
+        v_imp_min: j.min_impact_velocity_mps,
+    }
+}
+
 /// Constants of the model for one vehicle and one scenario (derived from §9).
 #[derive(Debug, Clone)]
 pub struct Model {
     pub geo: Trapezoid,
-    pub joint: ClearanceJoint,
+    /// The two clearance joints, left (0) and right (1); each has its own clearance c.
+    pub joint: [ClearanceJoint; 2],
     pub ideal: IdealJoint,
     pub mode: JointMode,
     pub sw: Switches,
@@ -179,22 +201,7 @@ impl Model {
             s.trapezoid_angle_deg.to_radians(),
         );
         let j = &p.joint;
-        let joint = ClearanceJoint {
-            c: clearance_m,
-            r_p: j.pin_radius_m,
-            r_b: j.pin_radius_m + clearance_m,
-            k: hertz_k(
-                j.young_modulus_pa,
-                j.poisson_ratio,
-                j.pin_radius_m,
-                clearance_m,
-            ),
-            ln_factor: 0.75 * (1.0 - j.restitution * j.restitution),
-            mu: j.friction,
-            v_eps: j.friction_reg_velocity_mps,
-            c_tan: j.tangential_damping_ns_per_m,
-            v_imp_min: j.min_impact_velocity_mps,
-        };
+        let joint = [clearance_joint(p, clearance_m); 2];
         let (k_t, k_g) = (s.tie_rod_stiffness_n_per_m, s.restraint_stiffness_n_per_m);
         let v = &p.vehicle;
         let a = &p.axle;
@@ -251,6 +258,13 @@ impl Model {
         }
     }
 
+    /// Sets the radial clearances c_L, c_R of the two joints (§4), e.g. for unequal wear or
+    /// clearance growing with distance. The Hertz stiffness K depends on c and is recomputed.
+    /// In the single-clearance variant the right joint stays ideal whatever `right_m` says.
+    pub fn set_clearance(&mut self, p: &VehicleParams, left_m: f64, right_m: f64) {
+        self.joint = [clearance_joint(p, left_m), clearance_joint(p, right_m)];
+    }
+
     /// Steering-wheel angle seen by the sensor (rad): §8 kinematic pinion angle, or the §15
     /// rim angle when the column option is on.
     #[inline]
@@ -281,7 +295,7 @@ impl Model {
                 self.ideal
                     .force(pts.p[i], pts.p_dot[i], pts.b[i], pts.b_dot[i])
             } else {
-                let f = self.joint.force(
+                let f = self.joint[i].force(
                     pts.p[i],
                     pts.p_dot[i],
                     pts.b[i],
@@ -319,9 +333,7 @@ impl Model {
                 JointMode::Ideal => true,
             };
             if !ideal {
-                *o = self
-                    .joint
-                    .penetration(pts.p[i], pts.p_dot[i], pts.b[i], pts.b_dot[i]);
+                *o = self.joint[i].penetration(pts.p[i], pts.p_dot[i], pts.b[i], pts.b_dot[i]);
             }
         }
         out

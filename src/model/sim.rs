@@ -17,8 +17,12 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Scenario {
-    /// c: radial clearance of the joints (§4).
+    /// c: radial clearance of the joints (§4); of the left joint when `clearance_right_m`
+    /// is set.
     pub clearance_m: f64,
+    /// Radial clearance of the right joint when it differs from the left (unequal wear);
+    /// None = both joints have `clearance_m`. Ignored in the single-clearance variant.
+    pub clearance_right_m: Option<f64>,
     /// Which joints have clearance.
     pub joints: JointMode,
     /// Seed of the unbalance phases and road noise (§7).
@@ -63,6 +67,7 @@ impl Default for Scenario {
     fn default() -> Self {
         Self {
             clearance_m: 0.1e-3,
+            clearance_right_m: None,
             joints: JointMode::Dual,
             seed: 0,
             v0_mps: 55.0 / 3.6,
@@ -98,6 +103,11 @@ impl Scenario {
         }
         if self.clearance_m > 5e-3 {
             return err("clearance_m", self.clearance_m, "must be <= 5 mm");
+        }
+        if let Some(c) = self.clearance_right_m {
+            if !(c.is_finite() && c > 0.0 && c <= 5e-3) {
+                return err("clearance_right_m", c, "must be finite and in (0, 5] mm");
+            }
         }
         if !(self.v0_mps.is_finite() && self.v0_mps >= 0.0) {
             return err("v0_mps", self.v0_mps, "must be finite and >= 0");
@@ -168,6 +178,8 @@ pub struct Simulator {
     noise_on: bool,
     noise_stride: u64,
     integrator: Integrator,
+    /// Vehicle parameters (kept to rebuild the joint constants in `set_clearance`).
+    params: VehicleParams,
 }
 
 /// Hold time of the road noise (MODEL.md §7: held over each step of h = 1e-4 s).
@@ -194,7 +206,7 @@ impl Simulator {
         } else {
             0.0
         };
-        let model = Model::new(
+        let mut model = Model::new(
             p,
             sc.clearance_m,
             sc.joints,
@@ -202,6 +214,9 @@ impl Simulator {
             unbalance,
             exc.phases,
         );
+        if let Some(right_m) = sc.clearance_right_m {
+            model.set_clearance(p, sc.clearance_m, right_m);
+        }
         let mut y = [0.0; N];
         y[ix::TH1D] = sc.kick_theta1_rad_s.unwrap_or(p.excitation.kick_rad_per_s);
         y[ix::TH2D] = sc.kick_theta2_rad_s;
@@ -227,6 +242,7 @@ impl Simulator {
             noise_on: sc.noise,
             noise_stride,
             integrator: sc.integrator,
+            params: p.clone(),
         };
         sim.update_contact_flags();
         Ok(sim)
@@ -251,6 +267,31 @@ impl Simulator {
     /// The model constants.
     pub fn model(&self) -> &Model {
         &self.model
+    }
+
+    /// Sets the radial clearances of the left and right joints from now on (§4): unequal
+    /// wear, or clearance growing with distance (firmware-sim's wear option). A joint whose
+    /// clearance grows while the pin presses into the bushing simply sees a smaller
+    /// penetration at the next step; the contact flags are re-evaluated here (§10).
+    /// Errors (and changes nothing) on a value that is not finite or not in (0, 5] mm.
+    pub fn set_clearance(&mut self, left_m: f64, right_m: f64) -> Result<(), ScenarioError> {
+        for (key, c) in [("clearance_left_m", left_m), ("clearance_right_m", right_m)] {
+            if !(c.is_finite() && c > 0.0 && c <= 5e-3) {
+                return Err(ScenarioError {
+                    key,
+                    value: c,
+                    why: "must be finite and in (0, 5] mm",
+                });
+            }
+        }
+        self.model.set_clearance(&self.params, left_m, right_m);
+        self.update_contact_flags();
+        Ok(())
+    }
+
+    /// Radial clearances (left, right) in use.
+    pub fn clearance_m(&self) -> [f64; 2] {
+        [self.model.joint[0].c, self.model.joint[1].c]
     }
 
     /// Switches the longitudinal input to an external demand (m/s², > 0 braking, < 0
@@ -285,11 +326,10 @@ impl Simulator {
     #[inline]
     fn update_contact_flags(&mut self) {
         let pen = self.model.penetrations(&self.y);
-        let v_min = self.model.joint.v_imp_min;
         for (i, &(delta, delta_dot)) in pen.iter().enumerate() {
             if delta > 0.0 {
                 if self.ctx.v_imp[i].is_none() {
-                    self.ctx.v_imp[i] = Some(delta_dot.max(v_min));
+                    self.ctx.v_imp[i] = Some(delta_dot.max(self.model.joint[i].v_imp_min));
                 }
             } else {
                 self.ctx.v_imp[i] = None;
