@@ -50,9 +50,9 @@ pub struct Options {
 /// Builds the event stage for a configuration (the observer adapter, or [`super::pipeline::NoObserver`]).
 pub type StageFactory = dyn Fn(&Config) -> anyhow::Result<Box<dyn EventStage>>;
 
-/// Recorded-timing replay hands over every frame due within this much of now at once: frames
-/// are at most this early, and the loop sleeps at most once per slice.
-const PACE_SLICE: Duration = Duration::from_millis(2);
+/// Recorded-timing replay: once a frame is due, every frame due within this much after it is
+/// handed over at once (at most this early), so the loop sleeps about once per slice.
+const PACE_SLICE: Duration = Duration::from_millis(10);
 /// Brake pressure above which the brake counts as applied when only pressure is mapped (Pa).
 const BRAKE_ON_PA: f64 = 3.0e5;
 /// Steering history kept for event traces (s) and its fixed capacity (samples).
@@ -81,6 +81,8 @@ enum Input {
         fast: bool,
         /// (first frame time, wall clock at it) for recorded-timing replay.
         anchor: Option<(i64, Instant)>,
+        /// Frames due up to this offset from the anchor are released without a clock read.
+        released: Duration,
     },
     Live {
         rx: mpsc::Receiver<Frame>,
@@ -118,6 +120,7 @@ impl Input {
                 done,
                 fast,
                 anchor,
+                released,
             } => loop {
                 if cur.is_none() {
                     let Some(p) = logs.pop_front() else {
@@ -137,16 +140,19 @@ impl Input {
                         if !*fast {
                             let (t0, w0) = *anchor.get_or_insert((f.t_ns, Instant::now()));
                             let due = Duration::from_nanos((f.t_ns - t0).max(0) as u64);
-                            // Batch pacing: a frame due within PACE_SLICE is handed over now,
-                            // so at bus rate the loop wakes once per slice, not once per frame
-                            // (a sleep per frame cost more CPU than the processing). Sleep in
-                            // short steps so signals are seen promptly.
-                            while !stop.load(Ordering::Relaxed) {
-                                let ahead = due.saturating_sub(w0.elapsed());
-                                if ahead <= PACE_SLICE {
-                                    break;
+                            // Batch pacing: frames due before `released` (the clock at the last
+                            // look plus PACE_SLICE) are handed over at once, without reading
+                            // the clock; at bus rate the loop looks at the clock and sleeps
+                            // once per slice, not once per frame (a sleep per frame cost more
+                            // CPU than the processing). Sleep in short steps so signals are
+                            // seen promptly.
+                            while due > *released && !stop.load(Ordering::Relaxed) {
+                                let now = w0.elapsed();
+                                if due > now {
+                                    std::thread::sleep((due - now).min(Duration::from_millis(50)));
+                                } else {
+                                    *released = now + PACE_SLICE;
                                 }
-                                std::thread::sleep(ahead.min(Duration::from_millis(50)));
                             }
                         }
                         return Ok(Feed::Frame(f));
@@ -539,6 +545,7 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
             done: SourceStats::default(),
             fast: opts.fast || cfg.input.fast,
             anchor: None,
+            released: Duration::ZERO,
         }
     };
     let mut sink = open_sink(&cfg, &db, live)?;
