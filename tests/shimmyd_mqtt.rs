@@ -293,18 +293,22 @@ fn check_delivery(got: &[(String, Value)], want: &[(&str, Value)]) {
     }
 }
 
-#[test]
-fn every_alert_and_event_reaches_a_running_broker() {
+/// Replays the demo against a running broker with `qos`; checks delivery against the journal.
+fn replay_against_a_running_broker(qos: u8) {
     let Some(bin) = mosquitto() else { return };
     let dir = tempfile::tempdir().unwrap();
     let port = free_port();
     let _broker = Broker::start(&bin, dir.path(), port);
-    let sub = Sub::connect(port, "test-sub-1", false);
+    let sub = Sub::connect(port, &format!("test-sub-qos{qos}"), false);
     let cfg = config(dir.path(), port, 10.0);
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    assert!(text.contains("qos = 1 "));
+    std::fs::write(&cfg, text.replacen("qos = 1 ", &format!("qos = {qos} "), 1)).unwrap();
     let out = daemon(&cfg).output().unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(err.contains("mqtt: connected to"), "{err}");
+    assert!(err.contains(&format!("(QoS {qos})")), "{err}");
 
     let want = journaled(dir.path());
     let alerts = want.iter().filter(|(k, _)| *k == "alert").count();
@@ -319,6 +323,17 @@ fn every_alert_and_event_reaches_a_running_broker() {
     // Nothing left behind in the outbox.
     assert!(!err.contains("still queued"), "{err}");
     sub.disconnect();
+}
+
+#[test]
+fn every_alert_and_event_reaches_a_running_broker() {
+    replay_against_a_running_broker(1);
+}
+
+#[test]
+fn qos_0_and_2_deliver_too() {
+    replay_against_a_running_broker(0);
+    replay_against_a_running_broker(2);
 }
 
 #[test]
