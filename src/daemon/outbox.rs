@@ -20,6 +20,9 @@
 //! drop to the caller, which logs it. Published messages carry the running drop count, so the
 //! backend sees that (and, from the sequence gap, which) messages were dropped.
 //!
+//! A cursor file that does not parse is moved aside (`cursor.json.bad`) and reported; every
+//! message still on disk is then sent again (duplicates, never losses).
+//!
 //! Disk: rotated segments whose messages have all left the queue are deleted, except the newest
 //! one (it keeps the sequence numbers continuing after a restart with an empty queue).
 //!
@@ -73,6 +76,8 @@ pub struct Opened {
     /// Invalid lines skipped while reading the queue back.
     pub invalid_lines: u64,
     pub dropped_total: u64,
+    /// A corrupt cursor file that was moved aside.
+    pub problem: Option<String>,
 }
 
 /// The queue.
@@ -96,17 +101,29 @@ impl Outbox {
             },
         )
         .with_context(|| format!("cannot open the MQTT outbox in {}", dir.display()))?;
-        let cursor = match fs::read(dir.join(CURSOR)) {
-            Ok(b) => serde_json::from_slice::<Cursor>(&b).with_context(|| {
-                format!(
-                    "{} does not parse; remove it to resend the whole outbox",
-                    dir.join(CURSOR).display()
-                )
-            })?,
+        let cursor_path = dir.join(CURSOR);
+        let mut problem = None;
+        let cursor = match fs::read(&cursor_path) {
+            Ok(b) => match serde_json::from_slice::<Cursor>(&b) {
+                Ok(c) => c,
+                Err(e) => {
+                    // Never silently: moved aside, and everything still on disk is sent again
+                    // (at-least-once; subscribers de-duplicate on the id).
+                    let aside = dir.join(format!("{CURSOR}.bad"));
+                    fs::rename(&cursor_path, &aside).with_context(|| {
+                        format!("cannot move corrupt {} aside", cursor_path.display())
+                    })?;
+                    problem = Some(format!(
+                        "{} did not parse ({e}); moved to {}, resending every message still on disk",
+                        cursor_path.display(),
+                        aside.display()
+                    ));
+                    Cursor::default()
+                }
+            },
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Cursor::default(),
             Err(e) => {
-                return Err(e)
-                    .with_context(|| format!("cannot read {}", dir.join(CURSOR).display()))
+                return Err(e).with_context(|| format!("cannot read {}", cursor_path.display()))
             }
         };
         let mut ob = Outbox {
@@ -138,6 +155,7 @@ impl Outbox {
             truncated_bytes: rec.truncated_bytes,
             invalid_lines: reader.invalid_lines() + reader.out_of_order(),
             dropped_total: ob.cursor.dropped,
+            problem,
         };
         Ok((ob, opened))
     }
@@ -294,6 +312,23 @@ mod tests {
         let (ob, o) = Outbox::open(dir.path(), limits(100)).unwrap();
         assert_eq!(o.pending, 0);
         assert_eq!(ob.next_seq(), before);
+    }
+
+    #[test]
+    fn a_corrupt_cursor_is_moved_aside_and_everything_resent() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let (mut ob, _) = Outbox::open(dir.path(), limits(100)).unwrap();
+            ob.push("t", "a".into()).unwrap();
+            ob.push("t", "b".into()).unwrap();
+            ob.delivered(1).unwrap();
+        }
+        fs::write(dir.path().join(CURSOR), b"{\"next\":").unwrap();
+        let (ob, o) = Outbox::open(dir.path(), limits(100)).unwrap();
+        assert!(o.problem.unwrap().contains("did not parse"));
+        assert!(dir.path().join("cursor.json.bad").is_file());
+        assert_eq!(o.pending, 2, "both messages are sent again");
+        assert_eq!(ob.front().unwrap().payload, "a");
     }
 
     #[test]

@@ -556,6 +556,9 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
             .clone()
             .unwrap_or_else(|| state_dir.join("mqtt-outbox"));
         let (p, opened) = super::mqtt::Publisher::start(&cfg.mqtt, &dir)?;
+        if let Some(problem) = &opened.problem {
+            log(format_args!("mqtt: {problem}"));
+        }
         log(format_args!(
             "mqtt: publishing to {}:{} as {} (QoS {}), outbox {} with {} message(s) queued from before{}",
             cfg.mqtt.host,
