@@ -31,7 +31,7 @@ pub fn shimmyd() -> PathBuf {
 
 /// The firmware-sim executable (another workspace member, so cargo gives this package no
 /// `CARGO_BIN_EXE_` for it):
-/// 1. `SHIMMY_FWSIM_BIN` when set (tests/vcan/vm.sh sets it to its static build);
+/// 1. `SHIMMY_FWSIM_BIN` when set and not empty (tests/vcan/vm.sh sets it to its static build);
 /// 2. else built now with the cargo, target directory and profile that built this test (a
 ///    no-op when it is up to date, as after `cargo test --workspace`), so a test never runs a
 ///    stale simulator;
@@ -39,7 +39,7 @@ pub fn shimmyd() -> PathBuf {
 pub fn firmware_sim() -> PathBuf {
     static BIN: OnceLock<PathBuf> = OnceLock::new();
     BIN.get_or_init(|| {
-        if let Some(p) = std::env::var_os("SHIMMY_FWSIM_BIN") {
+        if let Some(p) = std::env::var_os("SHIMMY_FWSIM_BIN").filter(|p| !p.is_empty()) {
             return PathBuf::from(p);
         }
         let cargo = PathBuf::from(env!("CARGO"));
