@@ -1,18 +1,23 @@
 //! Issue 6, the live path on a real kernel CAN bus: the `shimmyd` executable, started as a
-//! process reading `vcan0` (or `SHIMMY_VCAN_IF`), receives what the `firmware-sim` executable
-//! sends there in real time (`config/scenarios/vcan_0p4mm.toml`, about 30 s), is stopped with
-//! SIGTERM, and must have written the same alerts as `shimmyd --replay --fast` of the log
-//! firmware-sim recorded while sending. Checked:
+//! process reading `vcan0` (or `SHIMMY_VCAN_IF`), receives firmware-sim's frames of
+//! `config/scenarios/vcan_0p4mm.toml` (about 30 s of driving) in real time, is stopped with
+//! SIGTERM, and must have written the same alerts as `shimmyd --replay --fast` of the same log.
+//! Checked:
 //!
-//! * per message, frames sent (firmware-sim's ground truth) = frames the daemon received, and
-//!   no kernel drop, counter gap or checksum error: `VCAN-COUNTS test=shimmyd_live ...` lines,
-//!   collected by `tests/vcan_vm.rs`;
+//! * per message the daemon reads, frames sent (firmware-sim's ground truth) = frames the daemon
+//!   received, and no kernel drop, counter gap or checksum error: `VCAN-COUNTS
+//!   test=shimmyd_live ...` lines, collected by `tests/vcan_vm.rs`;
 //! * the same braking events (speed, deceleration, measured amplitude within tolerance), the
 //!   same alert kinds raised, and the same clearance estimate within tolerance as the replay,
 //!   which must itself raise alerts (0.4 mm joints), so the comparison is never vacuous.
 //!
-//! The test also reads the bus itself and prints how far the arrival times drifted from the
-//! recorded timing (the VM's emulated CPU must keep up with real time for live = replay).
+//! The `firmware-sim` executable writes the scenario's log first and this test puts the frames
+//! on the bus at their recorded timing (through `shimmy::source::socketcan::LiveSink`, as
+//! firmware-sim's own `--iface` mode does; that mode is tested by firmware-sim's `e2e_vcan`).
+//! Simulating while sending would stretch time wherever the model runs slower than real time,
+//! as it does on the VM's emulated CPU (measured: 27.5 s simulated took 46.9 s on a loaded
+//! host), and the daemon, which timestamps frames on arrival, would then rightly see other
+//! decelerations and frequencies than the replay. How late the sender was is printed.
 //!
 //! Without the interface this prints SKIPPED and passes, unless `SHIMMY_REQUIRE_VCAN=1` (the
 //! QEMU VM of `tests/vcan/vm.sh`, which runs it with the static `shimmyd` and `firmware-sim`
@@ -25,15 +30,13 @@ mod vcan_common;
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 use std::thread;
 use std::time::{Duration, Instant};
 
 use e2e_common::{firmware_sim, replay, shimmyd, workspace, write_config, Journal};
 use serde_json::Value;
 use shimmy::source::log::LogReader;
-use shimmy::source::socketcan::LiveSource;
+use shimmy::source::socketcan::LiveSink;
 use shimmy::source::CanSource;
 
 const SCENARIO: &str = "vcan_0p4mm";
@@ -58,21 +61,6 @@ fn read_lossy(p: &Path) -> String {
     String::from_utf8_lossy(&std::fs::read(p).unwrap_or_default()).into_owned()
 }
 
-/// Arrival time minus recorded time, relative to the first frame, for frames in send order.
-fn drift_ms(arrived: &[(i64, u32)], recorded: &[(i64, u32)]) -> (usize, f64, f64) {
-    let n = arrived.len().min(recorded.len());
-    if n == 0 {
-        return (0, 0.0, 0.0);
-    }
-    let (a0, r0) = (arrived[0].0, recorded[0].0);
-    let mut d: Vec<f64> = (0..n)
-        .map(|i| ((arrived[i].0 - a0) - (recorded[i].0 - r0)) as f64 * 1e-6)
-        .collect();
-    d.sort_by(f64::total_cmp);
-    let mismatched = (0..n).filter(|&i| arrived[i].1 != recorded[i].1).count();
-    (mismatched, d[n * 99 / 100], d[n - 1])
-}
-
 fn num(v: &Value) -> f64 {
     v.as_f64().unwrap_or(f64::NAN)
 }
@@ -94,7 +82,34 @@ fn shimmyd_live_on_vcan_writes_the_alerts_of_the_replay() {
     let sent_log = dir.path().join("sent.log");
     let truth_path = dir.path().join("truth.json");
 
-    // 1. The daemon, live on the interface.
+    // 1. firmware-sim writes the scenario's log and ground truth.
+    let t = Instant::now();
+    let out = Command::new(firmware_sim())
+        .arg("--scenario")
+        .arg(workspace().join(format!("config/scenarios/{SCENARIO}.toml")))
+        .arg("--out")
+        .arg(&sent_log)
+        .arg("--truth")
+        .arg(&truth_path)
+        .arg("--quiet")
+        .output()
+        .expect("start firmware-sim");
+    assert!(
+        out.status.success(),
+        "firmware-sim: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let sim_wall = t.elapsed().as_secs_f64();
+    let truth: Value =
+        serde_json::from_str(&std::fs::read_to_string(&truth_path).unwrap()).unwrap();
+    let mut frames = Vec::new();
+    let mut log = LogReader::open(&sent_log).unwrap();
+    while let Some(f) = log.next_frame().unwrap() {
+        frames.push(f);
+    }
+    assert_eq!(frames.len() as u64, truth["frames_sent"].as_u64().unwrap());
+
+    // 2. The daemon, live on the interface.
     let cfg = write_config(&live_dir, &format!("interfaces = [{ifname:?}]"));
     let err_path = live_dir.join("shimmyd.stderr");
     let mut daemon = Command::new(shimmyd())
@@ -114,49 +129,36 @@ fn shimmyd_live_on_vcan_writes_the_alerts_of_the_replay() {
         thread::sleep(Duration::from_millis(50));
     }
 
-    // 2. A reader of our own, for the timing of what arrives.
-    let mut rx_cfg = vcan_common::reader_config(&ifname, &[]);
-    rx_cfg.ids = None;
-    let mut src = LiveSource::open(rx_cfg).expect("open the CAN interface for reading");
-    let stop = Arc::new(AtomicBool::new(false));
-    let stop2 = stop.clone();
-    let reader = thread::spawn(move || {
-        let mut got = Vec::new();
-        while !stop2.load(Ordering::Relaxed) {
-            match src.next_frame() {
-                Ok(Some(f)) => got.push((f.t_ns, f.id)),
-                Ok(None) => break,
-                Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
-                Err(e) => panic!("reading the bus: {e}"),
-            }
+    // 3. The frames on the bus at their recorded timing. Like an ECU, never a burst to catch
+    //    up: a frame that is late goes out at once and the lateness is reported.
+    let mut sink = LiveSink::open(&ifname).expect("open the CAN interface for sending");
+    let start = Instant::now();
+    let t0 = frames[0].t_ns;
+    let mut late_ms: Vec<f64> = Vec::with_capacity(frames.len());
+    for f in &frames {
+        let due = Duration::from_nanos((f.t_ns - t0) as u64);
+        let now = start.elapsed();
+        if due > now {
+            thread::sleep(due - now);
         }
-        got
-    });
-
-    // 3. firmware-sim sends the scenario in real time (recording what it sent).
-    let started = Instant::now();
-    let mut sim = Command::new(firmware_sim())
-        .arg("--scenario")
-        .arg(workspace().join(format!("config/scenarios/{SCENARIO}.toml")))
-        .arg("--iface")
-        .arg(&ifname)
-        .arg("--speed")
-        .arg("1")
-        .arg("--out")
-        .arg(&sent_log)
-        .arg("--truth")
-        .arg(&truth_path)
-        .arg("--quiet")
-        .spawn()
-        .expect("start firmware-sim");
-    let status = wait_exit(&mut sim, "firmware-sim", Duration::from_secs(180));
-    assert!(status.success(), "firmware-sim failed: {status}");
-    let send_wall = started.elapsed().as_secs_f64();
+        late_ms.push((start.elapsed().saturating_sub(due)).as_secs_f64() * 1e3);
+        sink.send(f).expect("send on the CAN interface");
+    }
+    let send_wall = start.elapsed().as_secs_f64();
+    late_ms.sort_by(f64::total_cmp);
+    let (p99, max) = (
+        late_ms[late_ms.len() * 99 / 100],
+        late_ms[late_ms.len() - 1],
+    );
+    eprintln!(
+        "shimmyd_e2e_vcan: firmware-sim simulated {:.1} s in {sim_wall:.1} s; sent {} frames in \
+         {send_wall:.1} s, lateness p99 {p99:.1} ms, max {max:.1} ms",
+        num(&truth["duration_s"]),
+        frames.len()
+    );
 
     // 4. Let the daemon drain, then stop it as systemd would.
     thread::sleep(Duration::from_secs(1));
-    stop.store(true, Ordering::Relaxed);
-    let arrived = reader.join().unwrap();
     // SAFETY: kill(2) on the pid of a child we spawned and have not yet reaped.
     let rc = unsafe { libc::kill(daemon.id() as libc::pid_t, libc::SIGTERM) };
     assert_eq!(rc, 0, "kill(SIGTERM)");
@@ -169,29 +171,13 @@ fn shimmyd_live_on_vcan_writes_the_alerts_of_the_replay() {
     assert!(status.success(), "shimmyd exited with {status}: {live_err}");
     assert!(live_err.contains("SIGTERM: stopping"), "{live_err}");
 
-    // 5. The replay of what was sent.
-    let truth: Value =
-        serde_json::from_str(&std::fs::read_to_string(&truth_path).unwrap()).unwrap();
+    // 5. The replay of the same log.
     let replay_cfg = write_config(&replay_dir, "");
     replay(&replay_cfg, &sent_log, &replay_dir.join("state"));
     let live = Journal::read(&live_dir.join("journal"));
     let rep = Journal::read(&replay_dir.join("journal"));
 
     // Frames: sent = received by the daemon, per message, nothing lost or corrupted.
-    let mut recorded = Vec::new();
-    let mut log = LogReader::open(&sent_log).unwrap();
-    while let Some(f) = log.next_frame().unwrap() {
-        recorded.push((f.t_ns, f.id));
-    }
-    let (mismatched, p99, max) = drift_ms(&arrived, &recorded);
-    eprintln!(
-        "shimmyd_e2e_vcan: {:.1} s simulated sent in {send_wall:.1} s wall; this test's reader got \
-         {} of {} frames, {mismatched} out of send order; arrival drift vs recorded timing: \
-         p99 {p99:.1} ms, max {max:.1} ms",
-        num(&truth["duration_s"]),
-        arrived.len(),
-        recorded.len()
-    );
     let sent: BTreeMap<u64, (String, u64)> = truth["messages"]
         .as_array()
         .unwrap()
@@ -206,18 +192,19 @@ fn shimmyd_live_on_vcan_writes_the_alerts_of_the_replay() {
             )
         })
         .collect();
+    // The daemon subscribes (kernel filters) only to the messages its mapping uses.
     let stats = live.stop["messages"].as_array().unwrap();
-    let mut lost_total = 0;
+    let mut read_sent = 0;
     for (id, (name, s)) in &sent {
-        let m = stats
-            .iter()
-            .find(|m| m["id"].as_u64() == Some(*id))
-            .unwrap_or_else(|| panic!("no statistics for {name} in {}", live.stop));
+        let Some(m) = stats.iter().find(|m| m["id"].as_u64() == Some(*id)) else {
+            eprintln!("shimmyd_e2e_vcan: {name} ({id:#05x}, {s} frames) is not read by the daemon's mapping");
+            continue;
+        };
         let received = m["frames"].as_u64().unwrap();
-        let lost = s.saturating_sub(received);
-        lost_total += lost;
+        read_sent += s;
         eprintln!(
-            "VCAN-COUNTS test=shimmyd_live id={id:#05x} name={name} sent={s} received={received} lost={lost}"
+            "VCAN-COUNTS test=shimmyd_live id={id:#05x} name={name} sent={s} received={received} lost={}",
+            s.saturating_sub(received)
         );
         assert_eq!(
             received, *s,
@@ -232,14 +219,18 @@ fn shimmyd_live_on_vcan_writes_the_alerts_of_the_replay() {
             assert_eq!(m[k], 0, "{name}: {k} in {m}");
         }
     }
-    assert_eq!(lost_total, 0);
+    assert!(
+        read_sent > 0,
+        "the daemon read none of the messages: {}",
+        live.stop
+    );
     let counters = &live.stop["counters"];
-    assert_eq!(counters["frames"], truth["frames_sent"], "{counters}");
+    assert_eq!(counters["frames"], read_sent, "{counters}");
     assert_eq!(counters["dropped"], 0, "kernel drops: {counters}");
     assert_eq!(counters["decode_errors"], 0, "{counters}");
 
     // Conclusions: those of the replay.
-    let timing = format!("(arrival drift p99 {p99:.1} ms, max {max:.1} ms)");
+    let timing = format!("(sender lateness p99 {p99:.1} ms, max {max:.1} ms)");
     eprintln!("shimmyd_e2e_vcan: live:   {}", live.describe());
     eprintln!("shimmyd_e2e_vcan: replay: {}", rep.describe());
     assert!(
