@@ -281,7 +281,7 @@ fn reference_bus_load_arrives_complete_and_in_order() {
         due += tick_len;
         for (k, &(id, hz)) in REFERENCE_BUS.iter().enumerate() {
             let every = 100 / hz;
-            if (tick + k as u32) % every == 0 {
+            if (tick + k as u32).is_multiple_of(every) {
                 let n = sent.entry(id).or_default();
                 sink.send(&seq_frame(id, *n as u32)).unwrap();
                 *n += 1;

@@ -57,6 +57,18 @@ fn wait_exit(child: &mut Child, what: &str, limit: Duration) -> std::process::Ex
     }
 }
 
+/// A child process killed if the test panics before it is waited for.
+struct Reaped(Child);
+
+impl Drop for Reaped {
+    fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
 fn read_lossy(p: &Path) -> String {
     String::from_utf8_lossy(&std::fs::read(p).unwrap_or_default()).into_owned()
 }
@@ -112,18 +124,18 @@ fn shimmyd_live_on_vcan_writes_the_alerts_of_the_replay() {
     // 2. The daemon, live on the interface.
     let cfg = write_config(&live_dir, &format!("interfaces = [{ifname:?}]"));
     let err_path = live_dir.join("shimmyd.stderr");
-    let mut daemon = Command::new(shimmyd())
-        .arg("--config")
-        .arg(&cfg)
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(&err_path).unwrap())
-        .spawn()
-        .expect("start shimmyd");
+    let mut daemon = Reaped(
+        Command::new(shimmyd())
+            .arg("--config")
+            .arg(&cfg)
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&err_path).unwrap())
+            .spawn()
+            .expect("start shimmyd"),
+    );
     let t = Instant::now();
     while !read_lossy(&err_path).contains("started (live") {
-        if daemon.try_wait().unwrap().is_some() || t.elapsed() > Duration::from_secs(60) {
-            let _ = daemon.kill();
-            let _ = daemon.wait();
+        if daemon.0.try_wait().unwrap().is_some() || t.elapsed() > Duration::from_secs(60) {
             panic!("shimmyd did not start: {}", read_lossy(&err_path));
         }
         thread::sleep(Duration::from_millis(50));
@@ -160,10 +172,10 @@ fn shimmyd_live_on_vcan_writes_the_alerts_of_the_replay() {
     // 4. Let the daemon drain, then stop it as systemd would.
     thread::sleep(Duration::from_secs(1));
     // SAFETY: kill(2) on the pid of a child we spawned and have not yet reaped.
-    let rc = unsafe { libc::kill(daemon.id() as libc::pid_t, libc::SIGTERM) };
+    let rc = unsafe { libc::kill(daemon.0.id() as libc::pid_t, libc::SIGTERM) };
     assert_eq!(rc, 0, "kill(SIGTERM)");
     let status = wait_exit(
-        &mut daemon,
+        &mut daemon.0,
         "shimmyd after SIGTERM",
         Duration::from_secs(60),
     );

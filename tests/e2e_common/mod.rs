@@ -208,8 +208,8 @@ impl Journal {
                     )
                 })
                 .collect(),
-            estimate: of("estimate").last().map(|r| r["estimate"].clone()),
-            stop: of("stop").last().cloned().expect("a stop record"),
+            estimate: of("estimate").next_back().map(|r| r["estimate"].clone()),
+            stop: of("stop").next_back().cloned().expect("a stop record"),
         }
     }
 
