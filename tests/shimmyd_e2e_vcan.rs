@@ -178,10 +178,11 @@ fn shimmyd_live_on_vcan_writes_the_alerts_of_the_replay() {
         frames.len()
     );
 
-    // 4. Let the daemon drain, then stop it as systemd would. On SIGTERM it stops at once and
-    //    frames still queued between its reader thread and its main loop are not decoded, so
-    //    wait until its per-second counters line has twice reported no new frame (the VM's
-    //    emulated CPU can leave the main loop behind the bus for a while).
+    // 4. Let the daemon catch up, then stop it as systemd would. On SIGTERM its readers stop
+    //    reading the socket and the frames they had queued are still processed, but frames
+    //    still in the kernel's socket buffer are not read, so wait until its per-second
+    //    counters line has twice reported no new frame (the VM's emulated CPU can leave the
+    //    daemon behind the bus for a while).
     let quiet = |text: &str| text.matches("last 1 s: frames=0 ").count();
     let quiet_before = quiet(&read_lossy(&err_path));
     let t = Instant::now();

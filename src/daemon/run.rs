@@ -171,9 +171,37 @@ impl Input {
         }
     }
 
+    /// Tells the reader threads to stop; they finish the read in progress and exit.
     fn stop(&mut self) {
-        if let Input::Live { stops, threads, .. } = self {
+        if let Input::Live { stops, .. } = self {
             stops.iter().for_each(|s| s.store(true, Ordering::Relaxed));
+        }
+    }
+
+    /// After [`Input::stop`]: the next frame the reader threads had read from the kernel but
+    /// the daemon had not yet processed, so a stop loses none of them; `None` once every
+    /// reader has exited and the queue is empty. (Readers blocked on a full queue are
+    /// unblocked by this draining.)
+    fn queued(&mut self) -> Option<Frame> {
+        match self {
+            Input::Live { rx, threads, .. } => loop {
+                match rx.recv_timeout(Duration::from_millis(50)) {
+                    Ok(f) => return Some(f),
+                    Err(mpsc::RecvTimeoutError::Disconnected) => return None,
+                    Err(mpsc::RecvTimeoutError::Timeout) => {
+                        if threads.iter().all(|t| t.is_finished()) {
+                            return rx.try_recv().ok();
+                        }
+                    }
+                }
+            },
+            Input::Replay { .. } => None,
+        }
+    }
+
+    /// Waits for the reader threads after [`Input::stop`] and the drain.
+    fn join(&mut self) {
+        if let Input::Live { threads, .. } = self {
             for t in threads.drain(..) {
                 let _ = t.join();
             }
@@ -637,13 +665,8 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
             Feed::End => break Ok(()),
             Feed::Idle => {}
             Feed::Frame(f) => {
-                if let Some(s) = d.sample(&f) {
-                    d.stage.odometer_km(d.state.odometer_km);
-                    if let Some(e) = d.stage.push(&s) {
-                        if let Err(e) = d.on_event(e) {
-                            break Err(e);
-                        }
-                    }
+                if let Err(e) = process_frame(&mut d, &f) {
+                    break Err(e);
                 }
             }
         }
@@ -680,6 +703,19 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
     };
     input.stop();
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
+    // Frames the reader threads queued before they stopped are still processed (SIGTERM
+    // loses no frame that was read from the bus).
+    // After an error they are drained unprocessed (the readers must not block on the queue).
+    let mut drain_err = None;
+    while let Some(f) = input.queued() {
+        if result.is_ok() && drain_err.is_none() {
+            drain_err = process_frame(&mut d, &f).err();
+        }
+    }
+    input.join();
+    if let Some(e) = drain_err {
+        return Err(e);
+    }
     // Close an event still open (end of replay or SIGTERM mid-braking) so it is not lost.
     d.stage.odometer_km(d.state.odometer_km);
     if let Some(e) = d.stage.finish() {
@@ -709,6 +745,17 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
 type Sink = (super::transmit::Encoder, crate::source::socketcan::LiveSink);
 #[cfg(not(target_os = "linux"))]
 type Sink = (super::transmit::Encoder, ());
+
+/// One frame through the pipeline: signals → braking events → observer → journal/alerts.
+fn process_frame(d: &mut Daemon, f: &Frame) -> anyhow::Result<()> {
+    if let Some(s) = d.sample(f) {
+        d.stage.odometer_km(d.state.odometer_km);
+        if let Some(e) = d.stage.push(&s) {
+            d.on_event(e)?;
+        }
+    }
+    Ok(())
+}
 
 fn open_sink(cfg: &Config, db: &Database, live: bool) -> anyhow::Result<Option<Sink>> {
     if !cfg.outputs.transmit {
