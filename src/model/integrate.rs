@@ -49,6 +49,34 @@ pub enum StageTires<'a> {
         prev: &'a TireOut,
         h_prev: f64,
     },
+    /// Multirate, Lagrange: the first `n` (1–3) of `f`, exact at the times `off` relative to
+    /// the step start (≤ 0, distinct); stage time t + c·h gets the polynomial through them
+    /// (held, linear or parabolic).
+    Lagrange {
+        f: &'a [TireOut; 3],
+        off: [f64; 3],
+        n: usize,
+    },
+}
+
+/// Lagrange weights at `tau` of the first `n` nodes `off`.
+#[inline(always)]
+fn lagrange_weights(off: [f64; 3], n: usize, tau: f64) -> [f64; 3] {
+    match n {
+        1 => [1.0, 0.0, 0.0],
+        2 => {
+            let w1 = (tau - off[0]) / (off[1] - off[0]);
+            [1.0 - w1, w1, 0.0]
+        }
+        _ => {
+            let (a, b, c) = (off[0], off[1], off[2]);
+            [
+                (tau - b) * (tau - c) / ((a - b) * (a - c)),
+                (tau - a) * (tau - c) / ((b - a) * (b - c)),
+                (tau - a) * (tau - b) / ((c - a) * (c - b)),
+            ]
+        }
+    }
 }
 
 /// One classical RK4 step like [`rk4_step`], but the sines and cosines of the stage states are
@@ -80,6 +108,10 @@ pub fn rk4_step_shared(
             StageTires::Exact => model.eval_with(t + c * h, ys, ctx, tr, None, k, aux),
             StageTires::Extrapolated { now, prev, h_prev } => {
                 let held = now.extrapolate(prev, c * h / h_prev);
+                model.eval_with(t + c * h, ys, ctx, tr, Some(&held), k, aux)
+            }
+            StageTires::Lagrange { f, off, n } => {
+                let held = TireOut::combine(f, lagrange_weights(off, n, c * h));
                 model.eval_with(t + c * h, ys, ctx, tr, Some(&held), k, aux)
             }
         }

@@ -10,7 +10,7 @@ use super::braking::{front_wheel_force, pitch_accel, Demand};
 use super::geometry::{cross, Trapezoid};
 use super::joint::{hertz_k, ClearanceJoint, IdealJoint, JointForce};
 use super::params::VehicleParams;
-use super::tire::PureSlip;
+use super::tire::{MfTables, PureSlip};
 
 /// Number of states: the 16 of MODEL.md §1 plus the two of the §15 column option (held at zero
 /// when the option is off).
@@ -88,6 +88,10 @@ pub struct StepCtx {
     /// Warm-start the braking-slip Newton iteration and stop at convergence (faster
     /// integrator); false is MODEL.md §5.3's 8 cold Newton steps.
     pub warm_slip: bool,
+    /// Evaluate the Magic Formula through these tables (relative error < 1e-8, see
+    /// [`MfTables`]) instead of libm; implies the warm-started slip inversion. None is
+    /// MODEL.md §5.3 as written.
+    pub mf_table: Option<&'static MfTables>,
 }
 
 /// Forces and other by-products of one right-hand-side evaluation.
@@ -192,6 +196,25 @@ pub struct TireOut {
 }
 
 impl TireOut {
+    /// Σ w_j·f_j (Lagrange extrapolation through earlier values; κ from the first).
+    #[inline(always)]
+    pub fn combine(f: &[TireOut; 3], w: [f64; 3]) -> TireOut {
+        let c = |g: fn(&TireOut) -> [f64; 2]| {
+            let (a, b, d) = (g(&f[0]), g(&f[1]), g(&f[2]));
+            [
+                w[0] * a[0] + w[1] * b[0] + w[2] * d[0],
+                w[0] * a[1] + w[1] * b[1] + w[2] * d[1],
+            ]
+        };
+        TireOut {
+            fx: c(|t| t.fx),
+            fy: c(|t| t.fy),
+            mz: c(|t| t.mz),
+            sigma: c(|t| t.sigma),
+            kappa: f[0].kappa,
+        }
+    }
+
     /// `self + c·(self − prev)`: linear extrapolation by `c` steps from two step-start values.
     #[inline(always)]
     pub fn extrapolate(&self, prev: &TireOut, c: f64) -> TireOut {
@@ -486,7 +509,15 @@ impl Model {
         f_long: f64,
         kappa_guess: f64,
         warm: bool,
+        table: Option<&MfTables>,
     ) -> (f64, f64, f64, f64, f64) {
+        if let Some(tab) = table {
+            let tire = PureSlip::at_load_tab(fz, self.mu, tab);
+            let kappa = tire.invert_fx_tab(f_long, kappa_guess, 1e-10, tab);
+            let (fx, fy, mz) = tire.combined_tab(kappa, alpha_t, tab);
+            let sigma = tire.cornering_stiffness() / self.k_ty;
+            return (fx, fy, mz, sigma, kappa);
+        }
         let tire = PureSlip::at_load(fz, self.mu);
         let kappa = if warm {
             tire.invert_fx(f_long, Some(kappa_guess), 8, 1e-10)
@@ -510,8 +541,14 @@ impl Model {
         let mut out = TireOut::default();
         for i in 0..2 {
             let fz = self.wheel_load(i, y, tr.ph[i].0, u_om2);
-            let (fx, fy, mz, sigma, kappa) =
-                self.tire_forces(fz, y[ix::AL + i], f_long, ctx.kappa_guess[i], true);
+            let (fx, fy, mz, sigma, kappa) = self.tire_forces(
+                fz,
+                y[ix::AL + i],
+                f_long,
+                ctx.kappa_guess[i],
+                true,
+                ctx.mf_table,
+            );
             out.fx[i] = fx;
             out.fy[i] = fy;
             out.mz[i] = mz;
@@ -579,9 +616,14 @@ impl Model {
             if self.sw.tires {
                 let (fx, fy, mz, sigma, kappa) = match held {
                     Some(h) => (h.fx[i], h.fy[i], h.mz[i], h.sigma[i], h.kappa[i]),
-                    None => {
-                        self.tire_forces(fz, alpha_t, f_long, ctx.kappa_guess[i], ctx.warm_slip)
-                    }
+                    None => self.tire_forces(
+                        fz,
+                        alpha_t,
+                        f_long,
+                        ctx.kappa_guess[i],
+                        ctx.warm_slip,
+                        ctx.mf_table,
+                    ),
                 };
                 aux.kappa[i] = kappa;
                 aux.fx[i] = fx;

@@ -65,13 +65,15 @@ pub enum Integrator {
     /// evaluated exactly once per step, at its start, and extrapolated linearly in time over
     /// the stages through the previous step's values; the sines and cosines of the stage
     /// states are shifted from the step start by angle addition (exact to rounding). The
-    /// joints, kinematics and everything else are evaluated at every stage as in `Rk4`.
+    /// joints, kinematics and everything else are evaluated at every stage as in `Rk4`. The
+    /// Magic Formula goes through [`super::tire::MfTables`] (relative error < 1e-8).
     /// Not MODEL.md §10 to the last digit: its error is in docs/BENCHMARKS.md.
     Rk4Multirate,
     /// `Rk4Multirate` while a joint is in contact or was recently, and in free flight (no
     /// contact anywhere in the step, checked at every stage and by a cubic through the
     /// end-point penetrations) one RK4 step over up to [`ADAPTIVE_MAX_MERGE`] grid steps,
-    /// with exact tires at every stage and the §7 road noise averaged over the merged grid
+    /// with the tires evaluated at every stage (tabulated Magic Formula as in
+    /// `Rk4Multirate`) and the §7 road noise averaged over the merged grid
     /// intervals. A step that would touch a contact is rejected and redone on the grid, so
     /// contact onsets are found on the grid as in `Rk4`. Merging happens only in
     /// [`Simulator::advance`] (and [`run`]); `Simulator::step` is one grid step.
@@ -107,6 +109,9 @@ impl Integrator {
         matches!(self, Integrator::Rk4Multirate | Integrator::Rk4Adaptive)
     }
 }
+
+/// `Integrator::Rk4Multirate` evaluates the tires exactly every this many grid steps.
+pub const MULTIRATE_TIRE_EVERY: u64 = 2;
 
 /// Most grid steps `Integrator::Rk4Adaptive` merges into one free-flight step.
 pub const ADAPTIVE_MAX_MERGE: u64 = 10;
@@ -232,13 +237,20 @@ pub struct Simulator {
     trig: Trig,
     /// Penetration and rate of each joint at the current state ((−∞, 0) if ideal).
     pen: [(f64, f64); 2],
-    /// Multirate: exact tire outputs at the previous step start and that step's length
-    /// (0 = none: hold instead of extrapolating).
-    tire_prev: TireOut,
-    tire_prev_h: f64,
+    /// Multirate: the last three exact tire outputs, their times, how many are valid (0 =
+    /// restart), and the grid step of the newest.
+    tire_hist: [TireOut; 3],
+    tire_t: [f64; 3],
+    tire_n: usize,
+    tire_step: u64,
     /// Adaptive: grid steps before this index are taken on the grid (after a contact or a
     /// rejected merged step).
     fine_until: u64,
+    /// Adaptive: exact tire outputs at the starts of the current and the previous merged
+    /// steps of an unbroken run of merged steps, and how many of them are valid.
+    merged_tires: [TireOut; 3],
+    merged_t: [f64; 3],
+    merged_valid: usize,
     /// Adaptive: merged steps taken and rejected (diagnostics).
     merged: u64,
     rejected: u64,
@@ -293,6 +305,11 @@ impl Simulator {
             },
             kappa_guess: [0.0; 2],
             warm_slip: sc.integrator != Integrator::Rk4,
+            mf_table: if sc.integrator.shares_trig() {
+                Some(super::tire::MfTables::get())
+            } else {
+                None
+            },
         };
         let mut sim = Self {
             model,
@@ -307,9 +324,14 @@ impl Simulator {
             params: p.clone(),
             trig: Trig::default(),
             pen: [(f64::NEG_INFINITY, 0.0); 2],
-            tire_prev: TireOut::default(),
-            tire_prev_h: 0.0,
+            tire_hist: [TireOut::default(); 3],
+            tire_t: [0.0; 3],
+            tire_n: 0,
+            tire_step: 0,
             fine_until: 0,
+            merged_tires: [TireOut::default(); 3],
+            merged_t: [0.0; 3],
+            merged_valid: 0,
             merged: 0,
             rejected: 0,
         };
@@ -371,7 +393,8 @@ impl Simulator {
         };
         if demand != self.ctx.demand {
             // A jump in the demand: do not extrapolate the tire forces across it.
-            self.tire_prev_h = 0.0;
+            self.tire_n = 0;
+            self.merged_valid = 0;
         }
         self.ctx.demand = demand;
     }
@@ -427,24 +450,29 @@ impl Simulator {
                 // Stay on the grid until ADAPTIVE_MAX_MERGE steps after the last contact.
                 self.fine_until = self.steps + 1 + ADAPTIVE_MAX_MERGE;
             }
+            self.merged_valid = 0;
             self.step();
         }
     }
 
-    /// One grid step of the multirate scheme: exact tires at the step start, extrapolated
-    /// through the previous step start's values over the stages.
+    /// One grid step of the multirate scheme: the tire outputs are evaluated exactly at the
+    /// start of every [`MULTIRATE_TIRE_EVERY`]-th grid step and extrapolated over the stages
+    /// by the parabola through the last three such values (a line or a hold after a restart).
     #[inline]
     fn multirate_step(&mut self, t: f64) {
-        let now = self.model.tires(t, &self.y, &self.trig, &self.ctx);
-        let (prev, h_prev) = if self.tire_prev_h > 0.0 {
-            (self.tire_prev, self.tire_prev_h)
-        } else {
-            (now, self.h)
-        };
-        let tires = StageTires::Extrapolated {
-            now: &now,
-            prev: &prev,
-            h_prev,
+        if self.tire_n == 0 || self.steps - self.tire_step >= MULTIRATE_TIRE_EVERY {
+            let now = self.model.tires(t, &self.y, &self.trig, &self.ctx);
+            self.tire_hist = [now, self.tire_hist[0], self.tire_hist[1]];
+            self.tire_t = [t, self.tire_t[0], self.tire_t[1]];
+            self.tire_n = (self.tire_n + 1).min(3);
+            self.tire_step = self.steps;
+            self.ctx.kappa_guess = now.kappa;
+        }
+        let off = [self.tire_t[0] - t, self.tire_t[1] - t, self.tire_t[2] - t];
+        let tires = StageTires::Lagrange {
+            f: &self.tire_hist,
+            off,
+            n: self.tire_n,
         };
         rk4_step_shared(
             &self.model,
@@ -455,9 +483,6 @@ impl Simulator {
             &self.trig,
             tires,
         );
-        self.ctx.kappa_guess = now.kappa;
-        self.tire_prev = now;
-        self.tire_prev_h = self.h;
     }
 
     /// Tries one RK4 step over `m` grid steps in free flight (`Integrator::Rk4Adaptive`).
@@ -485,6 +510,21 @@ impl Simulator {
         let inv_m = 1.0 / m as f64;
         self.ctx.noise = [sum[0] * inv_m, sum[1] * inv_m];
         let big_h = m as f64 * self.h;
+        // Tires: after two merged steps in a row, exact once at the step start and
+        // extrapolated over the stages by the parabola through the last three step starts;
+        // otherwise exact at every stage.
+        let now = self.model.tires(t, &self.y, &self.trig, &self.ctx);
+        let f = [now, self.merged_tires[0], self.merged_tires[1]];
+        let dt = [0.0, t - self.merged_t[0], t - self.merged_t[1]];
+        let tires = if self.merged_valid >= 2 {
+            StageTires::Lagrange {
+                f: &f,
+                off: [0.0, -dt[1], -dt[2]],
+                n: 3,
+            }
+        } else {
+            StageTires::Exact
+        };
         let (aux, max_delta) = rk4_step_shared(
             &self.model,
             t,
@@ -492,14 +532,14 @@ impl Simulator {
             big_h,
             &self.ctx,
             &self.trig,
-            StageTires::Exact,
+            tires,
         );
         let trig1 = Trig::exact(&self.model, &self.y);
         let pen1 = self.model.penetrations_trig(&self.y, &trig1);
         let mut ok = max_delta < 0.0 && self.y.iter().all(|v| v.is_finite());
-        for i in 0..2 {
+        for (i, (&p0, &p1)) in self.pen.iter().zip(&pen1).enumerate() {
             if self.model.has_clearance(i) && ok {
-                ok = hermite_stays_negative(self.pen[i], pen1[i], big_h);
+                ok = hermite_stays_negative(p0, p1, big_h);
             }
         }
         if !ok {
@@ -508,16 +548,24 @@ impl Simulator {
             self.ctx.noise = noise0;
             self.fine_until = self.steps + m;
             self.rejected += 1;
+            self.merged_valid = 0;
             return false;
         }
+        self.merged_tires = f;
+        self.merged_t = [t, self.merged_t[0], self.merged_t[1]];
+        self.merged_valid = (self.merged_valid + 1).min(3);
         self.merged += 1;
         self.steps += m;
         self.trig = trig1;
         self.pen = pen1;
         self.ctx.noise = noise_end;
-        self.ctx.kappa_guess = aux.kappa;
+        self.ctx.kappa_guess = if self.merged_valid >= 3 {
+            now.kappa
+        } else {
+            aux.kappa
+        };
         // The grid steps that follow hold the tires for their first step.
-        self.tire_prev_h = 0.0;
+        self.tire_n = 0;
         true
     }
 
