@@ -1,8 +1,12 @@
-//! Integrators (MODEL.md §10): the classical fixed-step RK4 of the paper. Works on the
-//! fixed-size state of `rhs`; nothing here allocates.
+//! Integrators (MODEL.md §10): the classical fixed-step RK4 of the paper ([`rk4_step`]), and
+//! the same RK4 with stage sines/cosines shifted from the step start and the tire outputs
+//! taken from a [`StageTires`] policy ([`rk4_step_shared`], used by the multirate and
+//! adaptive schemes of `sim::Integrator`). Works on the fixed-size state of `rhs`; nothing
+//! here allocates.
 //!
-//! What it is: one step of the scheme, given the values held over the step. What it is not:
-//! the step-boundary updates of contact flags, impact velocities and noise (`sim`).
+//! What it is: one step of a scheme, given the values held over the step. What it is not:
+//! the step-boundary updates of contact flags, impact velocities and noise, or the choice of
+//! step length (`sim`).
 
 use super::rhs::{Aux, Model, State, StepCtx, TireOut, Trig, N};
 
