@@ -40,6 +40,7 @@ fn table() -> ResponseTable {
         clearance_mm,
         speed_kmh,
         decel_g,
+        vehicles: 1,
         seeds: 1,
         cells,
         amp_map: vec![[0.01, 0.03], [0.1, 0.25]],

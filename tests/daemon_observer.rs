@@ -188,7 +188,15 @@ fn with_a_table_the_shimmy_and_clearance_alerts_follow_the_truth() {
     let dir = tempfile::tempdir().unwrap();
     let table = dir.path().join("table.json");
     let out = Command::new(env!("CARGO_BIN_EXE_shimmy"))
-        .args(["calibrate", "--clearances", "4", "--speeds", "40,55,75"])
+        .args([
+            "calibrate",
+            "--clearances",
+            "4",
+            "--vehicles",
+            "2",
+            "--speeds",
+            "40,55,75",
+        ])
         .args([
             "--decels",
             "0.4,0.5,0.6",
