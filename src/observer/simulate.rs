@@ -70,11 +70,14 @@ pub enum EventShape {
 }
 
 impl EventShape {
-    /// The shape the response table uses by default: firmware-sim's drive (1.5 s hold after
-    /// reaching the cruise speed, 1 s pedal hold at the stop).
+    /// The shape the response table uses by default, like firmware-sim's fleet drive: 6 s at
+    /// the initial speed (the fleet re-accelerates for several seconds and then holds the speed
+    /// for 1.5 s; at large clearances the rattle needs seconds to build up: at 0.29 mm and
+    /// 55 km/h the braking peak after 2 s of cruising is ~0.19°, after 6 s ~0.27°, as in the
+    /// fleet's logs), 0.5 s pedal hold at the stop.
     pub const DRIVE: EventShape = EventShape::Drive {
-        cruise_s: 2.0,
-        hold_s: 1.0,
+        cruise_s: 6.0,
+        hold_s: 0.5,
     };
 }
 
