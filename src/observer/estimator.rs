@@ -48,7 +48,7 @@ pub struct EstimatorConfig {
 impl Default for EstimatorConfig {
     fn default() -> Self {
         EstimatorConfig {
-            std_inflation: 1.0,
+            std_inflation: 1.3,
             outlier_floor: 1e-3,
             wear_var_per_km: 1e-4,
             detection_limit_mm: 0.08,
