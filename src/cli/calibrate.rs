@@ -65,7 +65,7 @@ pub struct Args {
     pub clearance_range: Vec<f64>,
 
     /// Nuisance vehicles drawn from the prior (the same ones at every clearance).
-    #[arg(long, default_value_t = 12)]
+    #[arg(long, default_value_t = 10)]
     pub vehicles: u32,
 
     /// Initial speeds (km/h). Events outside are predicted from the nearest speed.
