@@ -1,11 +1,14 @@
 //! One simulated braking event seen through the observer (issue 5 items 2–3): the shimmy model
-//! (MODEL.md §6 event) is run, its steering-wheel angle δ_sw (§8) goes through the observer's
+//! is run through one braking event ([`EventShape`]: MODEL.md §6's event from a kick, or the
+//! event as a vehicle on the road sees it — seconds of cruising first, then firmware-sim's pedal
+//! law), its steering-wheel angle δ_sw (§8) goes through the observer's
 //! sensor model ([`super::sensor`]) and its speed through a 50 Hz speed signal, and the result
 //! is fed to the same [`Detector`] and [`Extractor`] that process a real log. So the features
 //! of a simulated event and of a measured one are computed by the same code.
 //!
-//! Also here: the nuisance draw ([`perturb`]: unbalance magnitude, ±10 % on the steering
-//! stiffnesses and dampings; unbalance phase and road noise come from the seed, MODEL.md §7).
+//! Also here: the nuisance draw of one vehicle ([`perturb`]: unbalance magnitude, ±10 % on the
+//! steering stiffnesses and dampings; [`perturb_vehicle`] adds the road-noise level; unbalance
+//! phase and road-noise realisation come from each event's seed, MODEL.md §7).
 //!
 //! What it is not: the table builder (that is `shimmy calibrate`) or firmware-sim's drive cycle.
 
