@@ -120,7 +120,21 @@ impl Driver {
     /// Index of the braking event in progress (onset to release), if any.
     pub fn current_event(&self) -> Option<usize> {
         match self.phase {
-            Phase::Braking { .. } | Phase::StoppedHold { .. } | Phase::Release { .. } => {
+            Phase::Braking { .. } | Phase::StoppedHold { .. } | Phase::Release { .. }
+                if self.seg < self.drive.segments.len() =>
+            {
+                Some(self.events.len() - 1)
+            }
+            _ => None,
+        }
+    }
+
+    /// Index of the braking event that is decelerating the car (onset to `t_end_s`: the stop
+    /// or the end of the ramp-out), if any.
+    pub fn braking_event(&self) -> Option<usize> {
+        match self.phase {
+            // (After the last segment the phase is left as it was.)
+            Phase::Braking { .. } if self.seg < self.drive.segments.len() => {
                 Some(self.events.len() - 1)
             }
             _ => None,

@@ -78,16 +78,4 @@ fn bus_follows_the_model() {
         (min_acc + 0.5 * 9.80665).abs() < 0.3,
         "peak deceleration {min_acc}"
     );
-    assert!(
-        ModelPlant::new(
-            &Scenario::parse(
-                &SHORT.replace("left_mm = 0.2", "left_mm = 0.2\nright_mm = 0.3"),
-                "t"
-            )
-            .unwrap(),
-            None
-        )
-        .is_err(),
-        "unequal dual clearances must be refused, not approximated"
-    );
 }
