@@ -204,8 +204,7 @@ impl ModelPlant {
             h_s: sc.step_s,
             unbalance: sc.excitation.unbalance_kgm > 0.0,
             noise: sc.excitation.road_noise_nm > 0.0,
-            // Same solution as plain RK4 (to 1e-10 slip), fewer Newton iterations.
-            integrator: shimmy::model::Integrator::Rk4WarmSlip,
+            integrator: sc.integrator,
             ..ModelScenario::default()
         };
         let sim = Simulator::new(&p, &msc).context("cannot set up the shimmy model")?;

@@ -34,6 +34,12 @@ pub struct Scenario {
     /// Model integration step (s); MODEL.md §10 uses 1e-4.
     #[serde(default = "default_step_s")]
     pub step_s: f64,
+    /// Integration scheme of the model (`shimmy::model::Integrator`, snake_case name).
+    /// Default `rk4_warm_slip`: MODEL.md §10's RK4 with the slip iteration warm-started (the
+    /// same solution as `rk4` to 1e-10 slip, fewer Newton iterations). Any scheme is
+    /// deterministic; logs are byte-identical only for the same scheme.
+    #[serde(default = "default_integrator")]
+    pub integrator: shimmy::model::Integrator,
     /// Start of the log as Unix time (s); frame timestamps are this plus simulated time.
     #[serde(default = "default_start_unix_s")]
     pub start_unix_s: f64,
@@ -51,6 +57,9 @@ pub struct Scenario {
 
 fn default_step_s() -> f64 {
     1e-4
+}
+fn default_integrator() -> shimmy::model::Integrator {
+    shimmy::model::Integrator::Rk4WarmSlip
 }
 fn default_start_unix_s() -> f64 {
     // 2026-01-01T00:00:00Z: a fixed epoch so logs are reproducible.
@@ -688,6 +697,17 @@ decel_g = 0.5
         let c = Scenario::parse(&single, "test").unwrap().clearance;
         let (l, r) = c.at_distance_mm(1000.0);
         assert!((l - 0.15).abs() < 1e-12 && r == 0.0, "{l} {r}");
+    }
+
+    #[test]
+    fn integrator_defaults_to_warm_slip_rk4_and_unknown_names_are_named() {
+        use shimmy::model::Integrator;
+        let sc = Scenario::parse(MINIMAL, "test").unwrap();
+        assert_eq!(sc.integrator, Integrator::Rk4WarmSlip);
+        let sc = Scenario::parse(&format!("integrator = \"rk4\"\n{MINIMAL}"), "test").unwrap();
+        assert_eq!(sc.integrator, Integrator::Rk4);
+        let e = err(&format!("integrator = \"rk5\"\n{MINIMAL}"));
+        assert!(e.contains("rk5"), "{e}");
     }
 
     #[test]

@@ -358,6 +358,8 @@ impl<P: Plant> FirmwareSim<P> {
                 file: self.info.scenario_file.clone(),
                 seed: self.scenario.seed,
                 vehicle_file: self.info.vehicle_file.clone(),
+                integrator: self.scenario.integrator,
+                step_s: self.scenario.step_s,
             },
             start_unix_s: self.scenario.start_unix_s,
             duration_s: self.plant.t_s(),

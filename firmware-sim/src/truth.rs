@@ -52,6 +52,9 @@ pub struct ScenarioId {
     pub file: Option<String>,
     pub seed: u64,
     pub vehicle_file: Option<String>,
+    /// The model's integration scheme and step (s), which the log's exact bytes depend on.
+    pub integrator: shimmy::model::Integrator,
+    pub step_s: f64,
 }
 
 /// The true clearances (mm) of the run. With `single`, the right joint is ideal and reported
