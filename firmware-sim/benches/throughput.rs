@@ -12,8 +12,9 @@
 //!
 //! Before criterion runs, a table is printed with, per configuration, simulated seconds per CPU
 //! second of this thread (independent of other load on the machine) and per wall second, over
-//! a few whole runs: the default, every other model integrator, and the scenario's `step_s`
-//! knob at 2e-4 s (MODEL.md §10: a few percent from the reference; not the default).
+//! a few whole runs: the default, every other model integrator, the scenario's `step_s` knob at
+//! 2e-4 s (MODEL.md §10: a few percent from the reference; not the default), and
+//! `control_period_s = 1e-3` (demand and ECU sampling every 10 model steps; not the default).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -111,6 +112,15 @@ fn bench(c: &mut Criterion) {
     row(
         format!("model, {default:?}, h = 2e-4 s (step_s knob)"),
         rates(3, || model_sim(&coarse), &mut buf),
+    );
+    let mut ctl = sc.clone();
+    ctl.control_period_s = Some(1e-3);
+    row(
+        format!(
+            "model, {default:?}, h = {} s, control_period_s = 1e-3",
+            sc.step_s
+        ),
+        rates(3, || model_sim(&ctl), &mut buf),
     );
     row("bus_only (point mass)".into(), rates(20, point, &mut buf));
 

@@ -39,8 +39,10 @@ use firmware_sim::{FirmwareSim, RunInfo, Scenario};
 ///   seed = 20                      name, description, vehicle = "file.toml" (VehicleParams,
 ///                                  relative to the scenario; default MODEL.md §9), step_s
 ///                                  (1e-4), integrator ("rk4_warm_slip"; the model's
-///                                  schemes, see `shimmy simulate --help`), start_unix_s
-///                                  are optional
+///                                  schemes, see `shimmy simulate --help`),
+///                                  control_period_s (= step_s: driver demand, ECU sampling
+///                                  and contact tally every model step; e.g. 1e-3 holds the
+///                                  demand over 10 steps), start_unix_s are optional
 ///   [clearance]  mode = "dual" (both joints worn) | "single" (left worn, right ideal);
 ///                left_mm (> 0, at the start of the run; both joints when right_mm is absent);
 ///                right_mm (dual only: unequal wear); wear: wear_mm_per_1000km (0; growth of

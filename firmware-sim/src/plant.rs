@@ -16,6 +16,14 @@ pub trait Plant {
     fn t_s(&self) -> f64;
     /// Advance one step. Must not allocate.
     fn step(&mut self);
+    /// Advance `n` steps with the inputs held; afterwards `accel_mps2` is the mean over them.
+    /// The same as `n` calls of [`Plant::step`] unless the plant has a faster way (a model
+    /// integrator that merges steps). Must not allocate.
+    fn advance(&mut self, n: u64) {
+        for _ in 0..n {
+            self.step();
+        }
+    }
     /// Longitudinal demand for the next steps (m/s², + = decelerating). The plant fades braking
     /// demand by `min(1, v/v_stop)` (MODEL.md §6) so the car stops rather than reverses.
     fn set_decel_demand(&mut self, a_mps2: f64);
@@ -140,6 +148,13 @@ impl Plant for PointMass {
         self.steer = self.shimmy_amplitude_rad
             * (2.0 * std::f64::consts::PI * self.shimmy_hz * self.t).sin();
     }
+    fn advance(&mut self, n: u64) {
+        let v0 = self.v;
+        for _ in 0..n {
+            self.step();
+        }
+        self.accel = (self.v - v0) / (n.max(1) as f64 * self.h);
+    }
     fn set_decel_demand(&mut self, a_mps2: f64) {
         self.a_dem = a_mps2;
     }
@@ -228,9 +243,14 @@ impl Plant for ModelPlant {
         self.sim.t()
     }
     fn step(&mut self) {
-        self.sim.step();
+        self.advance(1);
+    }
+    fn advance(&mut self, n: u64) {
+        for _ in 0..n {
+            self.sim.step();
+        }
         let v = self.speed_mps();
-        self.accel = (v - self.v_prev) / self.sim.h();
+        self.accel = (v - self.v_prev) / (n.max(1) as f64 * self.sim.h());
         self.v_prev = v;
     }
     fn set_decel_demand(&mut self, a_mps2: f64) {

@@ -40,6 +40,13 @@ pub struct Scenario {
     /// deterministic; logs are byte-identical only for the same scheme.
     #[serde(default = "default_integrator")]
     pub integrator: shimmy::model::Integrator,
+    /// How often the driver updates the longitudinal demand, the ECUs sample the plant and
+    /// joint contact is tallied (s); the plant advances this far per update in one
+    /// `Plant::advance` call (so a model integrator that merges grid steps can). A multiple of
+    /// `step_s` that divides the 1 ms ground-truth trace interval. Absent: every model step
+    /// (the reference behaviour; logs then do not depend on this key).
+    #[serde(default)]
+    pub control_period_s: Option<f64>,
     /// Start of the log as Unix time (s); frame timestamps are this plus simulated time.
     #[serde(default = "default_start_unix_s")]
     pub start_unix_s: f64,
@@ -402,6 +409,21 @@ impl Scenario {
         self.clearance.at_distance_mm(0.0).1
     }
 
+    /// Model steps per control update (see `control_period_s`): 1 when the key is absent.
+    pub fn control_steps(&self) -> u64 {
+        match self.control_period_s {
+            Some(cp) => (cp / self.step_s).round().max(1.0) as u64,
+            None => 1,
+        }
+    }
+
+    /// Model steps per sample of the 1 kHz ground-truth δ_sw trace.
+    pub fn trace_steps(&self) -> u64 {
+        ((1.0 / crate::sim::TRACE_HZ) / self.step_s)
+            .round()
+            .max(1.0) as u64
+    }
+
     /// Check ranges and cross-field rules; the error names the key.
     pub fn validate(&self) -> anyhow::Result<()> {
         fn range(key: &str, v: f64, lo: f64, hi: f64) -> anyhow::Result<()> {
@@ -418,6 +440,21 @@ impl Scenario {
         }
         range("step_s", self.step_s, 1e-6, 1e-3)?;
         range("start_unix_s", self.start_unix_s, 0.0, 4e9)?;
+        if let Some(cp) = self.control_period_s {
+            range("control_period_s", cp, self.step_s, 1e-3)?;
+            let k = self.control_steps();
+            if (k as f64 * self.step_s - cp).abs() > 1e-6 * cp
+                || !self.trace_steps().is_multiple_of(k)
+            {
+                bail!(
+                    "control_period_s = {cp} must be a whole number of model steps (step_s = {}) \
+                     dividing the 1 ms trace interval, e.g. {} or {}",
+                    self.step_s,
+                    self.step_s,
+                    self.trace_steps() as f64 * self.step_s
+                );
+            }
+        }
         let c = &self.clearance;
         // The model needs a clearance > 0 (MODEL.md §4); a new joint has about 0.03 mm.
         positive("clearance.left_mm", c.left_mm, MAX_CLEARANCE_MM)?;
@@ -708,6 +745,18 @@ decel_g = 0.5
         assert_eq!(sc.integrator, Integrator::Rk4);
         let e = err(&format!("integrator = \"rk5\"\n{MINIMAL}"));
         assert!(e.contains("rk5"), "{e}");
+    }
+
+    #[test]
+    fn control_period_must_be_whole_steps_dividing_the_trace_interval() {
+        let with = |cp: &str| format!("control_period_s = {cp}\n{MINIMAL}");
+        let sc = Scenario::parse(&with("5e-4"), "test").unwrap();
+        assert_eq!(sc.control_steps(), 5);
+        assert_eq!(Scenario::parse(MINIMAL, "test").unwrap().control_steps(), 1);
+        for bad in ["1.5e-4", "3e-4", "2e-3", "5e-5", "-1e-3"] {
+            let e = err(&with(bad));
+            assert!(e.contains("control_period_s"), "{bad}: {e}");
+        }
     }
 
     #[test]

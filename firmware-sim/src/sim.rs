@@ -65,6 +65,8 @@ pub struct FirmwareSim<P: Plant> {
     batch_pos: usize,
     h_s: f64,
     steps: u64,
+    /// Model steps per control update (`Scenario::control_steps`).
+    chunk: u64,
     trace_every: u64,
     trace: Vec<f64>,
     distance_m: f64,
@@ -105,7 +107,8 @@ impl<P: Plant> FirmwareSim<P> {
             scenario.seed,
             t0_ns,
         )?;
-        let trace_every = ((1.0 / TRACE_HZ) / h).round().max(1.0) as u64;
+        let trace_every = scenario.trace_steps();
+        let chunk = scenario.control_steps();
         let mut lane_rng = ChaCha8Rng::seed_from_u64(scenario.seed);
         lane_rng.set_stream(1);
         let d = &scenario.driver;
@@ -119,7 +122,8 @@ impl<P: Plant> FirmwareSim<P> {
         let est = estimate_duration_s(scenario);
         let clearance_mm = scenario.clearance.at_distance_mm(0.0);
         let wear_every = if scenario.clearance.wear_mm_per_1000km > 0.0 {
-            (WEAR_UPDATE_S / h).round().max(1.0) as u64
+            // On the trace grid, so every control period divides it.
+            (WEAR_UPDATE_S * TRACE_HZ).round() as u64 * trace_every
         } else {
             0
         };
@@ -133,7 +137,7 @@ impl<P: Plant> FirmwareSim<P> {
             scenario: scenario.clone(),
             info,
             plant,
-            driver: Driver::new(&scenario.drive, h),
+            driver: Driver::new(&scenario.drive, chunk as f64 * h),
             lane,
             lane_rng,
             lane_rad: 0.0,
@@ -142,6 +146,7 @@ impl<P: Plant> FirmwareSim<P> {
             batch_pos: 0,
             h_s: h,
             steps: 0,
+            chunk,
             trace_every,
             trace: Vec::with_capacity((est * TRACE_HZ * 1.2) as usize + 16),
             distance_m: 0.0,
@@ -206,7 +211,8 @@ impl<P: Plant> FirmwareSim<P> {
         }
     }
 
-    /// One model step; fills the frame batch with whatever became due.
+    /// One control update: the driver's demand, `chunk` model steps with it held (one, unless
+    /// the scenario sets `control_period_s`), the bookkeeping, and the frames that became due.
     fn step(&mut self) {
         if !self.started {
             // Frames due at t = 0, before the first step.
@@ -247,10 +253,14 @@ impl<P: Plant> FirmwareSim<P> {
         };
         self.last_cmd = cmd;
         self.plant.set_decel_demand(cmd.decel_demand_mps2);
-        self.plant.step();
-        self.steps += 1;
+        if self.chunk == 1 {
+            self.plant.step();
+        } else {
+            self.plant.advance(self.chunk);
+        }
+        self.steps += self.chunk;
         let v1 = self.plant.speed_mps();
-        self.distance_m += 0.5 * (v + v1) * self.h_s;
+        self.distance_m += 0.5 * (v + v1) * self.chunk as f64 * self.h_s;
         if self.wear_every > 0 && self.steps.is_multiple_of(self.wear_every) {
             self.apply_wear();
         }

@@ -93,7 +93,8 @@ pub struct EventTruth {
     pub odometer_km: f64,
     /// Per joint (left, right): share of the model steps from onset to `t_end_s` with the pin
     /// in contact with its bushing (MODEL.md §4), and the number of impacts (free flight to
-    /// contact). An ideal joint reports 0 and 0.
+    /// contact). Sampled at every control update: every model step unless the scenario sets
+    /// `control_period_s`. An ideal joint reports 0 and 0.
     pub contact_fraction: [f64; 2],
     pub impacts: [u64; 2],
     /// Analysis window `[t_start, t_end + 0.3]` (s).

@@ -79,3 +79,35 @@ fn bus_follows_the_model() {
         "peak deceleration {min_acc}"
     );
 }
+
+#[test]
+fn control_period_coarsens_only_the_driver_and_sampling() {
+    // One model step per update is the reference: byte-identical to leaving the key out.
+    let (a, ta) = run(SHORT);
+    let with =
+        |cp: &str| SHORT.replace("seed = 11", &format!("seed = 11\ncontrol_period_s = {cp}"));
+    let (b, tb) = run(&with("1e-4"));
+    assert!(
+        a == b && ta == tb,
+        "control_period_s = step_s changed the run"
+    );
+    // 1 ms updates (10 model steps each, demand held): deterministic, and the same drive.
+    let (c, tc) = run(&with("1e-3"));
+    let (d, _) = run(&with("1e-3"));
+    assert!(c == d, "same seed, different logs with control_period_s");
+    assert!(a != c);
+    let truth = |t: &str| -> serde_json::Value { serde_json::from_str(t).unwrap() };
+    let (ta, tc) = (truth(&ta), truth(&tc));
+    assert_eq!(ta["frames_sent"], tc["frames_sent"]);
+    let (ea, ec) = (&ta["events"][0], &tc["events"][0]);
+    for k in ["t_start_s", "t_end_s"] {
+        let (x, y) = (ea[k].as_f64().unwrap(), ec[k].as_f64().unwrap());
+        assert!((x - y).abs() <= 1e-3 + 1e-9, "{k}: {x} vs {y}");
+    }
+    for k in ["v0_kmh", "v_end_kmh"] {
+        let (x, y) = (ea[k].as_f64().unwrap(), ec[k].as_f64().unwrap());
+        assert!((x - y).abs() < 0.1, "{k}: {x} vs {y}");
+    }
+    let dist = |t: &serde_json::Value| t["distance_km"].as_f64().unwrap();
+    assert!((dist(&ta) - dist(&tc)).abs() < 1e-4);
+}
