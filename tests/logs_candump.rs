@@ -147,3 +147,23 @@ fn reports_are_bounded_but_everything_is_counted() {
     assert_eq!(r.stats().malformed, 500);
     assert_eq!(r.take_skips().len(), 10);
 }
+
+#[test]
+fn an_overlong_line_is_one_located_skip() {
+    // A line longer than the reader's 256 KiB bound (a corrupted or binary log) costs exactly
+    // that line: it is reported with its line number and the lines around it still read.
+    let long = "x".repeat(300 * 1024);
+    let text = format!("(1.000000) can0 123#11\n{long}\n(1.000100) can0 124#22\n{long}");
+    let mut r = reader_for(&text, "long.log");
+    let frames = read_all(&mut r);
+    assert_eq!(frames.len(), 2);
+    assert_eq!(frames[1].id, 0x124);
+    assert_eq!(r.stats().malformed, 2);
+    let skips = r.take_skips();
+    let at: Vec<&str> = skips.iter().map(|s| s.location.as_str()).collect();
+    assert_eq!(at, ["long.log:2", "long.log:4"]);
+    assert!(
+        skips.iter().all(|s| s.reason.contains("256 KiB")),
+        "{skips:?}"
+    );
+}

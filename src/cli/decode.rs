@@ -318,10 +318,35 @@ fn write_jsonl<W: Write>(
         ", \"id\": {}, \"extended\": {}, \"msg\": {mname}, \"signals\": {{",
         frame.id, frame.extended
     )?;
+    let data = frame.payload();
+    let res = write_signal_map(msg, data, snames, out, |o, _raw, phys| {
+        write_num(o, phys, Format::Jsonl)
+    })?;
+    out.write_all(b"}")?;
+    if opts.raw {
+        out.write_all(b", \"raw\": {")?;
+        let _ = write_signal_map(msg, data, snames, out, |o, raw, _phys| {
+            write_raw(o, raw, Format::Jsonl)
+        })?;
+        out.write_all(b"}")?;
+    }
+    out.write_all(b"}\n")?;
+    Ok(res)
+}
+
+/// Writes `"name": value, …` for every signal `msg.decode` delivers (multiplexing honoured),
+/// the value written by `value` from the raw and physical values. Returns what the decoder
+/// returned; the first write error stops the output.
+fn write_signal_map<W: Write>(
+    msg: &Message,
+    data: &[u8],
+    snames: &[String],
+    out: &mut W,
+    mut value: impl FnMut(&mut W, RawValue, f64) -> io::Result<()>,
+) -> io::Result<DecodeResult> {
     let mut err: io::Result<()> = Ok(());
     let mut first = true;
-    let data = frame.payload();
-    let res = msg.decode(data, |i, _raw, phys| {
+    let res = msg.decode(data, |i, raw, phys| {
         if err.is_ok() {
             err = (|| {
                 if !first {
@@ -330,33 +355,11 @@ fn write_jsonl<W: Write>(
                 first = false;
                 out.write_all(snames[i].as_bytes())?;
                 out.write_all(b": ")?;
-                write_num(out, phys, Format::Jsonl)
+                value(out, raw, phys)
             })();
         }
     });
     err?;
-    out.write_all(b"}")?;
-    if opts.raw {
-        out.write_all(b", \"raw\": {")?;
-        let mut first = true;
-        let mut err: io::Result<()> = Ok(());
-        let _ = msg.decode(data, |i, raw, _| {
-            if err.is_ok() {
-                err = (|| {
-                    if !first {
-                        out.write_all(b", ")?;
-                    }
-                    first = false;
-                    out.write_all(snames[i].as_bytes())?;
-                    out.write_all(b": ")?;
-                    write_raw(out, raw, Format::Jsonl)
-                })();
-            }
-        });
-        err?;
-        out.write_all(b"}")?;
-    }
-    out.write_all(b"}\n")?;
     Ok(res)
 }
 

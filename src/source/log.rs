@@ -208,18 +208,9 @@ impl LogReader {
     fn step(&mut self, out: &mut Frame) -> io::Result<Step> {
         match &mut self.kind {
             Kind::Candump(lines) => {
-                let line = match lines.next_line()? {
-                    None => return Ok(Step::End),
-                    Some(l) => l,
-                };
-                let (bytes, terminated) = match line {
-                    Line::TooLong => {
-                        return Ok(Step::Malformed(
-                            lines.line_no(),
-                            "line longer than 256 KiB".into(),
-                        ))
-                    }
-                    Line::Text { bytes, terminated } => (bytes, terminated),
+                let (bytes, terminated) = match next_text(lines)? {
+                    Ok(text) => text,
+                    Err(step) => return Ok(step),
                 };
                 // Fast path for the common line shape, straight into `out`; every other line
                 // (and every error) goes through the full grammar.
@@ -240,18 +231,9 @@ impl LogReader {
                 })
             }
             Kind::Asc(lines, parser) => {
-                let line = match lines.next_line()? {
-                    None => return Ok(Step::End),
-                    Some(l) => l,
-                };
-                let (bytes, terminated) = match line {
-                    Line::TooLong => {
-                        return Ok(Step::Malformed(
-                            lines.line_no(),
-                            "line longer than 256 KiB".into(),
-                        ))
-                    }
-                    Line::Text { bytes, terminated } => (bytes, terminated),
+                let (bytes, terminated) = match next_text(lines)? {
+                    Ok(text) => text,
+                    Err(step) => return Ok(step),
                 };
                 Ok(match parser.parse_line(bytes) {
                     Ok(AscLine::Frame(f)) => {
@@ -370,4 +352,16 @@ impl LogReader {
             }
         }
     }
+}
+
+/// The next text line of a line-based log with whether it ended in a newline, or the step
+/// to report instead (end of input, or a line too long to hold).
+fn next_text(lines: &mut LineReader<BoxRead>) -> io::Result<Result<(&[u8], bool), Step>> {
+    // Every line the reader returns, a too-long one included, advances the count by one.
+    let line_no = lines.line_no() + 1;
+    Ok(match lines.next_line()? {
+        None => Err(Step::End),
+        Some(Line::TooLong) => Err(Step::Malformed(line_no, "line longer than 256 KiB".into())),
+        Some(Line::Text { bytes, terminated }) => Ok((bytes, terminated)),
+    })
 }

@@ -217,53 +217,9 @@ pub fn parse_common_into(line: &[u8], out: &mut Frame) -> bool {
     if n < 17 || s[0] != b'(' {
         return false;
     }
-    // Seconds: 1-12 digits (the bound keeps the loop short on garbage).
-    let mut i = 1;
-    let mut sec: i64 = 0;
-    loop {
-        let d = s[i].wrapping_sub(b'0');
-        if d > 9 {
-            break;
-        }
-        sec = sec * 10 + d as i64;
-        i += 1;
-        if i > 13 {
-            return false;
-        }
-    }
-    if i == 1 || s[i] != b'.' {
-        return false;
-    }
-    i += 1;
-    // Fraction: 6 or 9 digits, then ") ": at most 11 bytes from here, all indexed below.
-    if i + 11 > n {
-        return false;
-    }
-    let fstart = i;
-    let mut frac: i64 = 0;
-    loop {
-        let d = s[i].wrapping_sub(b'0');
-        if d > 9 || i - fstart == 9 {
-            break;
-        }
-        frac = frac * 10 + d as i64;
-        i += 1;
-    }
-    let frac_ns = match i - fstart {
-        6 => frac * 1000,
-        9 => frac,
-        _ => return false,
-    };
-    if s[i] != b')' || s[i + 1] != b' ' {
-        return false;
-    }
-    let Some(t_ns) = sec
-        .checked_mul(1_000_000_000)
-        .and_then(|ns| ns.checked_add(frac_ns))
-    else {
+    let Some((t_ns, mut i)) = fast_timestamp(s) else {
         return false;
     };
-    i += 2;
     // Interface name: up to the next space.
     let Some(sp) = memchr::memchr(b' ', &s[i..]) else {
         return false;
@@ -284,33 +240,10 @@ pub fn parse_common_into(line: &[u8], out: &mut Frame) -> bool {
     i += sp + 1;
     // Frame: ID '#' DATA up to the end of the line.
     let fr = &s[i..];
-    let (id, extended, data) = if fr.len() >= 4 && fr[3] == b'#' {
-        let (d0, d1, d2) = (
-            HEX[fr[0] as usize],
-            HEX[fr[1] as usize],
-            HEX[fr[2] as usize],
-        );
-        let v = (d0 as u32) << 8 | (d1 as u32) << 4 | d2 as u32;
-        if (d0 | d1 | d2) & 0xF0 != 0 || v > 0x7FF {
-            return false;
-        }
-        (v, false, &fr[4..])
-    } else if fr.len() >= 9 && fr[8] == b'#' {
-        let mut v: u32 = 0;
-        let mut bad: u8 = 0;
-        for &b in &fr[..8] {
-            let d = HEX[b as usize];
-            bad |= d;
-            v = (v << 4) | (d & 0x0F) as u32;
-        }
-        // Error frames and flag bits take the full parser.
-        if bad & 0xF0 != 0 || v & !CAN_ERR_MASK != 0 {
-            return false;
-        }
-        (v, true, &fr[9..])
-    } else {
+    let Some((id, extended, id_len)) = fast_id(fr) else {
         return false;
     };
+    let data = &fr[id_len..];
     // Data: an even number of hex digits, at most 8 bytes, nothing else.
     let len = data.len() / 2;
     if data.len() % 2 != 0 || len > 8 {
@@ -327,19 +260,7 @@ pub fn parse_common_into(line: &[u8], out: &mut Frame) -> bool {
     if bad & 0xF0 != 0 {
         return false;
     }
-    if out.len > 8 {
-        out.data[8..].fill(0);
-    }
-    out.data[..8].copy_from_slice(&bytes);
-    out.t_ns = t_ns;
-    out.id = id;
-    out.extended = extended;
-    out.kind = FrameKind::Data;
-    out.fd = false;
-    out.brs = false;
-    out.esi = false;
-    out.len = len as u8;
-    out.dlc = len as u8;
+    store_classic(out, t_ns, id, extended, &bytes, len);
     true
 }
 
@@ -356,46 +277,7 @@ pub fn parse_common_prefix(s: &[u8], out: &mut Frame) -> Option<usize> {
     if n < 18 || s[0] != b'(' {
         return None;
     }
-    let mut i = 1;
-    let mut sec: i64 = 0;
-    loop {
-        let d = s[i].wrapping_sub(b'0');
-        if d > 9 {
-            break;
-        }
-        sec = sec * 10 + d as i64;
-        i += 1;
-        if i > 13 {
-            return None;
-        }
-    }
-    if i == 1 || s[i] != b'.' {
-        return None;
-    }
-    i += 1;
-    if i + 11 > n {
-        return None;
-    }
-    let fstart = i;
-    let mut frac: i64 = 0;
-    loop {
-        let d = s[i].wrapping_sub(b'0');
-        if d > 9 || i - fstart == 9 {
-            break;
-        }
-        frac = frac * 10 + d as i64;
-        i += 1;
-    }
-    let frac_ns = match i - fstart {
-        6 => frac * 1000,
-        9 => frac,
-        _ => return None,
-    };
-    if s[i] != b')' || s[i + 1] != b' ' {
-        return None;
-    }
-    let t_ns = sec.checked_mul(1_000_000_000)?.checked_add(frac_ns)?;
-    i += 2;
+    let (t_ns, mut i) = fast_timestamp(s)?;
     // Interface name: only the one already in `out` (it holds no space, tab or newline); a
     // different name goes through the line-based parser, which validates it.
     let name = out.iface.as_bytes();
@@ -403,33 +285,8 @@ pub fn parse_common_prefix(s: &[u8], out: &mut Frame) -> Option<usize> {
         return None;
     }
     i += name.len() + 1;
-    let fr = &s[i..];
-    let (id, extended, mut p) = if fr.len() >= 4 && fr[3] == b'#' {
-        let (d0, d1, d2) = (
-            HEX[fr[0] as usize],
-            HEX[fr[1] as usize],
-            HEX[fr[2] as usize],
-        );
-        let v = (d0 as u32) << 8 | (d1 as u32) << 4 | d2 as u32;
-        if (d0 | d1 | d2) & 0xF0 != 0 || v > 0x7FF {
-            return None;
-        }
-        (v, false, i + 4)
-    } else if fr.len() >= 9 && fr[8] == b'#' {
-        let mut v: u32 = 0;
-        let mut bad: u8 = 0;
-        for &b in &fr[..8] {
-            let d = HEX[b as usize];
-            bad |= d;
-            v = (v << 4) | (d & 0x0F) as u32;
-        }
-        if bad & 0xF0 != 0 || v & !CAN_ERR_MASK != 0 {
-            return None;
-        }
-        (v, true, i + 9)
-    } else {
-        return None;
-    };
+    let (id, extended, id_len) = fast_id(&s[i..])?;
+    let mut p = i + id_len;
     // Data: hex pairs up to the line end; at most 8 bytes.
     let mut bytes = [0u8; 8];
     let mut len = 0;
@@ -452,10 +309,101 @@ pub fn parse_common_prefix(s: &[u8], out: &mut Frame) -> Option<usize> {
     if *s.get(p)? != b'\n' {
         return None;
     }
+    store_classic(out, t_ns, id, extended, &bytes, len);
+    Some(p + 1)
+}
+
+/// The fast paths' timestamp: `(` 1–12 digits `.` 6 or 9 digits `) ` at the start of `s`,
+/// which must be at least 17 bytes long. Returns the time in ns and the index just past the
+/// `) `; `None` for anything else (the full grammar then decides).
+#[inline(always)]
+fn fast_timestamp(s: &[u8]) -> Option<(i64, usize)> {
+    let n = s.len();
+    // Seconds: 1-12 digits (the bound keeps the loop short on garbage).
+    let mut i = 1;
+    let mut sec: i64 = 0;
+    loop {
+        let d = s[i].wrapping_sub(b'0');
+        if d > 9 {
+            break;
+        }
+        sec = sec * 10 + d as i64;
+        i += 1;
+        if i > 13 {
+            return None;
+        }
+    }
+    if i == 1 || s[i] != b'.' {
+        return None;
+    }
+    i += 1;
+    // Fraction: 6 or 9 digits, then ") ": at most 11 bytes from here, all indexed below.
+    if i + 11 > n {
+        return None;
+    }
+    let fstart = i;
+    let mut frac: i64 = 0;
+    loop {
+        let d = s[i].wrapping_sub(b'0');
+        if d > 9 || i - fstart == 9 {
+            break;
+        }
+        frac = frac * 10 + d as i64;
+        i += 1;
+    }
+    let frac_ns = match i - fstart {
+        6 => frac * 1000,
+        9 => frac,
+        _ => return None,
+    };
+    if s[i] != b')' || s[i + 1] != b' ' {
+        return None;
+    }
+    let t_ns = sec.checked_mul(1_000_000_000)?.checked_add(frac_ns)?;
+    Some((t_ns, i + 2))
+}
+
+/// The fast paths' identifier: `XXX#` (standard, ≤ 0x7FF) or `XXXXXXXX#` (extended, no
+/// error or flag bits) at the start of `fr`. Returns (id, extended, bytes taken with the `#`).
+#[inline(always)]
+fn fast_id(fr: &[u8]) -> Option<(u32, bool, usize)> {
+    if fr.len() >= 4 && fr[3] == b'#' {
+        let (d0, d1, d2) = (
+            HEX[fr[0] as usize],
+            HEX[fr[1] as usize],
+            HEX[fr[2] as usize],
+        );
+        let v = (d0 as u32) << 8 | (d1 as u32) << 4 | d2 as u32;
+        if (d0 | d1 | d2) & 0xF0 != 0 || v > 0x7FF {
+            return None;
+        }
+        Some((v, false, 4))
+    } else if fr.len() >= 9 && fr[8] == b'#' {
+        let mut v: u32 = 0;
+        let mut bad: u8 = 0;
+        for &b in &fr[..8] {
+            let d = HEX[b as usize];
+            bad |= d;
+            v = (v << 4) | (d & 0x0F) as u32;
+        }
+        // Error frames and flag bits take the full parser.
+        if bad & 0xF0 != 0 || v & !CAN_ERR_MASK != 0 {
+            return None;
+        }
+        Some((v, true, 9))
+    } else {
+        None
+    }
+}
+
+/// Writes a classic data frame into a reused `out`, touching only the bytes that can change
+/// (bytes past 8 are zeroed only when the previous frame was longer).
+#[inline(always)]
+fn store_classic(out: &mut Frame, t_ns: i64, id: u32, extended: bool, bytes: &[u8; 8], len: usize) {
     if out.len > 8 {
         out.data[8..].fill(0);
     }
-    out.data[..8].copy_from_slice(&bytes);
+    out.data[..8].copy_from_slice(bytes);
     out.t_ns = t_ns;
     out.id = id;
     out.extended = extended;
@@ -465,7 +413,6 @@ pub fn parse_common_prefix(s: &[u8], out: &mut Frame) -> Option<usize> {
     out.esi = false;
     out.len = len as u8;
     out.dlc = len as u8;
-    Some(p + 1)
 }
 
 /// The full grammar (every frame kind, precise errors); [`parse_line`] without the fast path.
