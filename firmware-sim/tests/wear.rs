@@ -188,14 +188,42 @@ fn runs_with_wear_and_unequal_clearances_are_deterministic() {
     assert!(a.log != c.log, "different seeds gave identical logs");
 }
 
+fn named(file: &str) -> Run {
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../config/scenarios")
+        .join(file);
+    run(&std::fs::read_to_string(path).unwrap())
+}
+
 #[test]
-fn named_scenarios_parse_with_their_documented_clearances() {
-    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/scenarios");
-    let wear = Scenario::load(&dir.join("wear_0p08_to_0p16mm.toml")).unwrap();
-    assert_eq!(wear.clearance.at_distance_mm(0.0), (0.08, 0.08));
-    assert_eq!(wear.clearance.max_mm, Some(0.16));
-    // The drive is long enough to reach the cap (1 km at 80 mm per 1000 km = 0.08 mm).
-    assert_eq!(wear.clearance.at_distance_mm(1000.0), (0.16, 0.16));
-    let unequal = Scenario::load(&dir.join("unequal_0p05l_0p3r.toml")).unwrap();
-    assert_eq!(unequal.clearance.at_distance_mm(0.0), (0.05, 0.3));
+fn named_wear_scenario_grows_from_0p08_to_0p16_mm() {
+    let r = named("wear_0p08_to_0p16mm.toml");
+    let c = &r.truth.clearance;
+    assert_eq!((c.left_mm_start, c.right_mm_start), (0.08, 0.08));
+    assert_eq!((c.left_mm_end, c.right_mm_end), (0.16, 0.16));
+    assert_eq!(c.odometer_km_start, 60000.0);
+    let ev: Vec<f64> = r.truth.events.iter().map(|e| e.clearance_left_mm).collect();
+    assert_eq!(ev.len(), 6);
+    assert!(ev.windows(2).all(|w| w[1] >= w[0]), "{ev:?}");
+    // The observer sees a spread of clearances: the first event well below the cap, several
+    // distinct values before it.
+    assert!(ev[0] < 0.1 && ev[3] > 0.14, "{ev:?}");
+    assert_eq!(r.model_clearance_m, [0.16e-3, 0.16e-3]);
+}
+
+#[test]
+fn named_unequal_scenario_has_its_clearances_and_a_busier_tight_joint() {
+    let r = named("unequal_0p05l_0p3r.toml");
+    let c = &r.truth.clearance;
+    assert_eq!((c.left_mm_start, c.right_mm_start), (0.05, 0.3));
+    assert_eq!((c.left_mm_end, c.right_mm_end), (0.05, 0.3));
+    assert_eq!(r.model_clearance_m, [0.05e-3, 0.3e-3]);
+    let sum = |j: usize| {
+        r.truth
+            .events
+            .iter()
+            .map(|e| e.contact_fraction[j])
+            .sum::<f64>()
+    };
+    assert!(sum(0) > 2.0 * sum(1), "contact L/R {} {}", sum(0), sum(1));
 }
