@@ -268,9 +268,9 @@ impl<P: Plant> FirmwareSim<P> {
         if let Some(ev) = braking.and_then(|i| self.event_joints.get_mut(i)) {
             ev.clearance_end_mm = self.clearance_mm;
             ev.steps += 1;
-            for j in 0..2 {
-                ev.contact_steps[j] += u64::from(contact[j]);
-                ev.impacts[j] += u64::from(contact[j] && !self.contact_prev[j]);
+            for (j, (&now, &before)) in contact.iter().zip(&self.contact_prev).enumerate() {
+                ev.contact_steps[j] += u64::from(now);
+                ev.impacts[j] += u64::from(now && !before);
             }
         }
         self.contact_prev = contact;
