@@ -1,7 +1,8 @@
 //! Cost of the clearance observer per braking event (issue 5: target under 20 ms on one core
 //! once the response table is built): the detector over one event's samples, the feature
 //! extraction (band-pass, peak, RMS, noise correction) and the posterior update over a table
-//! of the default `shimmy calibrate` grid size (14 clearances x 7 speeds x 3 decelerations).
+//! of the default `shimmy calibrate` grid size (12 clearances x 10 nuisance vehicles x 6 speeds
+//! x 2 decelerations).
 //!
 //! Run: cargo bench --bench observer
 
@@ -15,21 +16,26 @@ use shimmy::observer::table::{Cell, ResponseTable, FORMAT};
 use shimmy::observer::{Observer, ObserverConfig};
 
 fn table() -> ResponseTable {
-    let clearance_mm: Vec<f64> = (0..14)
-        .map(|i| 0.02 * (25f64).powf(i as f64 / 13.0))
+    let clearance_mm: Vec<f64> = (0..12)
+        .map(|i| 0.02 * (30f64).powf(i as f64 / 11.0))
         .collect();
-    let speed_kmh = vec![25.0, 40.0, 55.0, 70.0, 85.0, 100.0, 120.0];
-    let decel_g = vec![0.3, 0.55, 0.8];
+    let speed_kmh = vec![30.0, 42.0, 55.0, 70.0, 85.0, 100.0];
+    let decel_g = vec![0.3, 0.8];
+    let vehicles = 10;
     let mut cells = Vec::new();
     for &c in &clearance_mm {
-        for _ in &speed_kmh {
-            for _ in &decel_g {
-                let r = (0.04f64.powi(2) + (0.25 * c).powi(2)).sqrt().ln();
-                cells.push(Cell {
-                    mean: [r, r + 0.8],
-                    std: [0.15, 0.15],
-                    corr: 0.7,
-                });
+        for m in 0..vehicles {
+            for _ in &speed_kmh {
+                for _ in &decel_g {
+                    let r = (0.04f64.powi(2) + (0.25 * c * (1.0 + 0.05 * m as f64)).powi(2))
+                        .sqrt()
+                        .ln();
+                    cells.push(Cell {
+                        mean: [r, r + 0.8],
+                        std: [0.15, 0.15],
+                        corr: 0.7,
+                    });
+                }
             }
         }
     }
@@ -40,6 +46,7 @@ fn table() -> ResponseTable {
         clearance_mm,
         speed_kmh,
         decel_g,
+        vehicles,
         seeds: 1,
         cells,
         amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
@@ -95,13 +102,16 @@ fn bench(c: &mut Criterion) {
     );
     let mut est = Estimator::new(&t, EstimatorConfig::default()).unwrap();
     let mut odo = 0.0;
-    c.bench_function("observer: posterior update only (14 clearances)", |b| {
-        b.iter(|| {
-            odo += 1000.0;
-            est.update(&t, black_box(0.05), black_box(0.15), 57.0, 0.45, odo);
-            black_box(est.quantile_mm(0.5))
-        })
-    });
+    c.bench_function(
+        "observer: posterior update only (12 clearances x 10 vehicles)",
+        |b| {
+            b.iter(|| {
+                odo += 1000.0;
+                est.update(&t, black_box(0.05), black_box(0.15), 57.0, 0.45, odo);
+                black_box(est.quantile_mm(0.5))
+            })
+        },
+    );
 }
 
 criterion_group!(benches, bench);

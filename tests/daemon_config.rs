@@ -121,6 +121,52 @@ fn broken_configs_name_the_key_and_the_problem() {
             "rotate_mib = 0.0",
             &["outputs.rotate_mib"],
         ),
+        (
+            "std_inflation = 1.0",
+            "std_inflation = 0.0",
+            &["observer.estimator.std_inflation", "> 0"],
+        ),
+        (
+            "features = \"both\"",
+            "features = \"all\"",
+            &["observer.estimator.features", "all"],
+        ),
+        (
+            "wear_var_per_km = 0.0001",
+            "wear_var_per_km = -1.0",
+            &["observer.estimator.wear_var_per_km", ">= 0"],
+        ),
+        (
+            "std_inflation = 1.0",
+            "std_inflaton = 1.0",
+            &["unknown field", "std_inflaton"],
+        ),
+        (
+            "crest_factor = 2.2",
+            "crest_factor = -2.2",
+            &["observer.features.crest_factor"],
+        ),
+        (
+            "noise_deg = 0.01",
+            "noise_deg = -0.01",
+            &["observer.features.sensor.noise_deg"],
+        ),
+        (
+            "enabled = false\nhost = \"\"",
+            "enabled = true\nhost = \"\"",
+            &["mqtt.host", "required"],
+        ),
+        (
+            "enabled = false\nhost = \"\"",
+            "enabled = true\nhost = \"broker\"",
+            &["mqtt.client_id", "required"],
+        ),
+        ("qos = 1 ", "qos = 3 ", &["mqtt.qos", "0, 1 or 2"]),
+        (
+            "queue_max_messages = 10000",
+            "queue_max_mesages = 10000",
+            &["unknown field", "queue_max_mesages"],
+        ),
     ];
     for (from, to, needles) in cases {
         let e = broken(from, to);
@@ -128,6 +174,68 @@ fn broken_configs_name_the_key_and_the_problem() {
             assert!(e.contains(n), "`{to}`: error does not mention `{n}`:\n{e}");
         }
     }
+}
+
+/// Checks that only bite when MQTT is on.
+#[test]
+fn enabled_mqtt_settings_are_checked() {
+    let on = default_text().replacen(
+        "enabled = false\nhost = \"\"",
+        "enabled = true\nhost = \"localhost\"",
+        1,
+    );
+    let on = on.replacen("client_id = \"\"", "client_id = \"van-17\"", 1);
+    let c = load(&on).unwrap();
+    assert!(c.mqtt.enabled);
+    assert_eq!((c.mqtt.port, c.mqtt.qos), (1883, 1));
+    for (from, to, needle) in [
+        (
+            "client_id = \"van-17\"",
+            "client_id = \"van/17\"",
+            "mqtt.client_id",
+        ),
+        (
+            "topic_prefix = \"shimmy\"",
+            "topic_prefix = \"fleet/#\"",
+            "mqtt.topic_prefix",
+        ),
+        ("reconnect_s = 2.0", "reconnect_s = 0.0", "mqtt.reconnect_s"),
+        (
+            "queue_max_messages = 10000",
+            "queue_max_messages = 0",
+            "mqtt.queue_max_messages",
+        ),
+        (
+            "queue_max_mib = 8.0",
+            "queue_max_mib = -1.0",
+            "mqtt.queue_max_mib",
+        ),
+        ("port = 1883", "port = 70000", "port"),
+    ] {
+        assert!(on.contains(from), "{from}");
+        let e = load(&on.replacen(from, to, 1)).expect_err(to);
+        assert!(
+            e.contains(needle),
+            "`{to}`: error does not mention `{needle}`:\n{e}"
+        );
+    }
+}
+
+#[test]
+fn observer_settings_reach_the_config_and_default_to_the_observers() {
+    let c = load(&default_text()).unwrap();
+    assert!(!c.mqtt.enabled, "MQTT must be off by default");
+    assert_eq!(c.observer.estimator, Default::default());
+    assert_eq!(c.observer.features, Default::default());
+    let t = default_text().replacen("std_inflation = 1.0", "std_inflation = 1.7", 1);
+    let c = load(&t).unwrap();
+    assert_eq!(c.observer.estimator.std_inflation, 1.7);
+    // Without an [observer] table at all the observer's defaults apply.
+    let t = default_text();
+    let i = t.find("[observer.features]").unwrap();
+    let j = t.find("[mqtt]").unwrap();
+    let c = load(&format!("{}{}", &t[..i], &t[j..])).unwrap();
+    assert_eq!(c.observer, Default::default());
 }
 
 #[test]

@@ -12,6 +12,8 @@
 //! `tests/vcan_vm.rs` collects from the VM's console.
 #![cfg(target_os = "linux")]
 
+mod vcan_common;
+
 use std::collections::BTreeMap;
 use std::io;
 use std::process::Command;
@@ -36,25 +38,9 @@ fn bus_exclusive() -> std::sync::RwLockWriteGuard<'static, ()> {
     BUS.write().unwrap_or_else(|e| e.into_inner())
 }
 
-fn required() -> bool {
-    std::env::var("SHIMMY_REQUIRE_VCAN").is_ok_and(|v| v == "1")
-}
-
 /// The test interface, or `None` after printing why the test is skipped.
 fn vcan(test: &str) -> Option<String> {
-    let name = std::env::var("SHIMMY_VCAN_IF").unwrap_or_else(|_| "vcan0".into());
-    if std::path::Path::new("/sys/class/net").join(&name).exists() {
-        return Some(name);
-    }
-    let why = format!(
-        "no CAN interface {name} (one-time setup: sudo modprobe vcan; sudo ip link add dev {name} \
-         type vcan; sudo ip link set up {name}; or let tests/vcan_vm.rs run this in QEMU)"
-    );
-    if required() {
-        panic!("SHIMMY_REQUIRE_VCAN=1 but {why}");
-    }
-    eprintln!("SKIPPED live_vcan::{test}: {why}");
-    None
+    vcan_common::iface(&format!("live_vcan::{test}"))
 }
 
 fn now_ns() -> i64 {
@@ -62,14 +48,6 @@ fn now_ns() -> i64 {
         .duration_since(SystemTime::UNIX_EPOCH)
         .unwrap()
         .as_nanos() as i64
-}
-
-fn config(iface: &str, ids: &[FilterId]) -> LiveConfig {
-    let mut cfg = LiveConfig::new(iface);
-    cfg.ids = Some(ids.to_vec());
-    cfg.error_mask = 0;
-    cfg.read_timeout = Duration::from_millis(50);
-    cfg
 }
 
 /// Collect frames until `want` arrived or `limit` passed.
@@ -124,10 +102,10 @@ fn frame_kinds_round_trip_through_kernel_filters() {
         FilterId::standard(0x121),
         FilterId::standard(0x122),
     ];
-    let mut src = LiveSource::open(config(&iface, &ids)).unwrap();
+    let mut src = LiveSource::open(vcan_common::reader_config(&iface, &ids)).unwrap();
     let mut classic_only = LiveSource::open(LiveConfig {
         fd: false,
-        ..config(&iface, &ids)
+        ..vcan_common::reader_config(&iface, &ids)
     })
     .unwrap();
     assert!(src.kernel_timestamps(), "kernel timestamps not enabled");
@@ -273,7 +251,7 @@ fn reference_bus_load_arrives_complete_and_in_order() {
         .iter()
         .map(|&(_, hz)| (hz * seconds) as usize)
         .sum();
-    let src = LiveSource::open(config(&iface, &ids)).unwrap();
+    let src = LiveSource::open(vcan_common::reader_config(&iface, &ids)).unwrap();
     let reader = spawn_reader(
         src,
         move |got, _| got.len() >= total,
@@ -303,7 +281,7 @@ fn reference_bus_load_arrives_complete_and_in_order() {
         due += tick_len;
         for (k, &(id, hz)) in REFERENCE_BUS.iter().enumerate() {
             let every = 100 / hz;
-            if (tick + k as u32) % every == 0 {
+            if (tick + k as u32).is_multiple_of(every) {
                 let n = sent.entry(id).or_default();
                 sink.send(&seq_frame(id, *n as u32)).unwrap();
                 *n += 1;
@@ -345,7 +323,8 @@ fn receive_queue_overflow_is_counted_never_silent() {
     const N: u32 = 3000;
     // A tiny receive queue and a reader that starts late: the kernel must drop frames, and
     // every one of them must show up in the drop counter.
-    let mut cfg = config(&iface, &[FilterId::standard(ID), FilterId::standard(MARK)]);
+    let mut cfg =
+        vcan_common::reader_config(&iface, &[FilterId::standard(ID), FilterId::standard(MARK)]);
     cfg.rcvbuf_bytes = Some(4096);
     let mut src = LiveSource::open(cfg).unwrap();
     let mut sink = LiveSink::open(&iface).unwrap();
@@ -387,14 +366,18 @@ fn error_frames_are_counted_and_bus_off_reconnects() {
     };
     let _bus = bus_exclusive();
     const ID: u32 = 0x150;
-    let mut cfg = config(&iface, &[FilterId::standard(ID)]);
+    let mut cfg = vcan_common::reader_config(&iface, &[FilterId::standard(ID)]);
     cfg.error_mask = u32::MAX;
     cfg.backoff_initial = Duration::from_millis(20);
     let mut src = LiveSource::open(cfg).unwrap();
     let log = Arc::new(Mutex::new(Vec::<String>::new()));
     let log2 = log.clone();
     src.on_event(move |e| log2.lock().unwrap().push(e.to_string()));
-    let mut no_errors = LiveSource::open(config(&iface, &[FilterId::standard(ID)])).unwrap();
+    let mut no_errors = LiveSource::open(vcan_common::reader_config(
+        &iface,
+        &[FilterId::standard(ID)],
+    ))
+    .unwrap();
 
     let mut sink = LiveSink::open(&iface).unwrap();
     // Controller problem (CAN_ERR_CRTL) with "RX error warning" detail.
@@ -463,7 +446,7 @@ fn interface_down_up_reconnects_with_backoff() {
                 Ok(o) => String::from_utf8_lossy(&o.stderr).trim().to_string(),
                 Err(e) => format!("cannot run ip: {e}"),
             };
-            if required() {
+            if vcan_common::required() {
                 panic!("SHIMMY_REQUIRE_VCAN=1 but `ip link set` failed: {why}");
             }
             eprintln!(
@@ -474,7 +457,7 @@ fn interface_down_up_reconnects_with_backoff() {
         }
     }
     const ID: u32 = 0x160;
-    let mut cfg = config(&iface, &[FilterId::standard(ID)]);
+    let mut cfg = vcan_common::reader_config(&iface, &[FilterId::standard(ID)]);
     cfg.backoff_initial = Duration::from_millis(10);
     cfg.backoff_max = Duration::from_millis(80);
     let mut src = LiveSource::open(cfg).unwrap();
@@ -554,7 +537,7 @@ fn read_timeout_and_stop_flag() {
         return;
     };
     let _bus = bus_shared();
-    let mut cfg = config(&iface, &[FilterId::standard(0x170)]);
+    let mut cfg = vcan_common::reader_config(&iface, &[FilterId::standard(0x170)]);
     cfg.read_timeout = Duration::from_millis(100);
     let mut src = LiveSource::open(cfg).unwrap();
     let t = Instant::now();

@@ -128,3 +128,42 @@ fn bad_inputs_are_clear_errors() {
     assert!(out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("outside the studied 0.3–0.8 g"));
 }
+
+#[test]
+fn integrator_is_selectable_by_name_and_reported() {
+    let run = |name: &str| -> serde_json::Value {
+        let out = shimmy(&[
+            "simulate",
+            "--duration",
+            "3",
+            "--integrator",
+            name,
+            "--summary",
+        ]);
+        assert!(
+            out.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        serde_json::from_slice(&out.stdout).unwrap()
+    };
+    let spec = run("rk4");
+    assert_eq!(spec["integrator"], "rk4");
+    let spec_peak = spec["peak_theta1_bp_deg"].as_f64().unwrap();
+    for (name, serde_name) in [
+        ("rk4-warm-slip", "rk4_warm_slip"),
+        ("rk4-multirate", "rk4_multirate"),
+        ("rk4_adaptive", "rk4_adaptive"),
+    ] {
+        let v = run(name);
+        assert_eq!(v["integrator"], serde_name);
+        let peak = v["peak_theta1_bp_deg"].as_f64().unwrap();
+        assert!(
+            (peak - spec_peak).abs() < 0.01 * spec_peak,
+            "{name}: {peak} vs rk4 {spec_peak}"
+        );
+    }
+    let bad = shimmy(&["simulate", "--integrator", "euler", "--summary"]);
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("euler"));
+}

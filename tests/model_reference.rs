@@ -81,6 +81,19 @@ const SEEDS: [u64; 3] = [0, 1, 2];
 
 #[test]
 fn seed_means_agree_with_model_md_section_13() {
+    // RK4 with the warm-started slip inversion: the same statistics as the 8-cold-step
+    // variant to all printed digits (docs/BENCHMARKS.md) at half the CPU time.
+    agree_with_section_13(Integrator::Rk4WarmSlip);
+}
+
+#[test]
+fn seed_means_agree_with_model_md_section_13_adaptive_integrator() {
+    // The fastest scheme (docs/BENCHMARKS.md), the one recommended to firmware-sim and the
+    // observer, must pass the same check.
+    agree_with_section_13(Integrator::Rk4Adaptive);
+}
+
+fn agree_with_section_13(integrator: Integrator) {
     let p = VehicleParams::default();
     let mut jobs: Vec<(f64, f64, u64)> = Vec::new();
     for &c in &CS {
@@ -97,11 +110,9 @@ fn seed_means_agree_with_model_md_section_13() {
             }
         }
     }
-    // RK4 with the warm-started slip inversion: the same statistics as the 8-cold-step
-    // variant to all printed digits (docs/BENCHMARKS.md) at half the CPU time.
     let res: Vec<Features> = par_map(&jobs, |&(c, v, s)| {
         let sc = Scenario {
-            integrator: Integrator::Rk4WarmSlip,
+            integrator,
             ..case(c, v, 0.5, s)
         };
         features(&run(&p, &sc).unwrap()).unwrap()
@@ -141,7 +152,7 @@ fn seed_means_agree_with_model_md_section_13() {
     println!("{report}");
     assert!(
         bad.is_empty(),
-        "disagree with MODEL.md §13: {bad:?}\n{report}"
+        "{integrator:?}: disagree with MODEL.md §13: {bad:?}\n{report}"
     );
 }
 

@@ -47,6 +47,7 @@ fn table() -> ResponseTable {
         clearance_mm,
         speed_kmh,
         decel_g,
+        vehicles: 1,
         seeds: 1,
         cells,
         amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
@@ -191,4 +192,143 @@ fn isotonic_fit_is_monotone_and_keeps_sorted_data() {
     let mut s = vec![0.1, 0.2, 0.5];
     isotonic_in_place(&mut s);
     assert_eq!(s, vec![0.1, 0.2, 0.5]);
+}
+
+/// A synthetic table with vehicle-level nuisance: vehicle m scales the wheel's motion by
+/// e^{δ_m} (a stiffer or softer steering, a bigger unbalance), the same for all its events, so
+/// it is indistinguishable from a clearance e^{δ_m} times larger. `vehicles` = the δ_m of the
+/// table (one cell set each, event spread SPREAD); `pooled` = one cell set whose spread also
+/// carries the vehicle spread (the old table's "nuisances per event").
+fn nuisance_table(deltas: &[f64], pooled_spread: Option<f64>) -> ResponseTable {
+    let nc = 25;
+    let clearance_mm: Vec<f64> = (0..nc)
+        .map(|i| 0.02 * (0.8f64 / 0.02).powf(i as f64 / (nc - 1) as f64))
+        .collect();
+    let speed_kmh = vec![40.0, 80.0];
+    let decel_g = vec![0.5];
+    let mut cells = Vec::new();
+    for &c in &clearance_mm {
+        for &d in deltas {
+            for &v in &speed_kmh {
+                let (a, b) = law(c * d.exp(), v);
+                let s = pooled_spread.unwrap_or(SPREAD);
+                cells.push(Cell {
+                    mean: shimmy::observer::features::z(a.exp(), b.exp()),
+                    std: [s, s],
+                    corr: 0.8,
+                });
+            }
+        }
+    }
+    let t = ResponseTable {
+        format: FORMAT.into(),
+        vehicle_hash: "0123456789abcdef".into(),
+        sensor: SensorModel::default(),
+        clearance_mm,
+        speed_kmh,
+        decel_g,
+        vehicles: deltas.len() as u32,
+        seeds: 1,
+        cells,
+        amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
+        provenance: "synthetic".into(),
+    };
+    t.validate().unwrap();
+    t
+}
+
+const VEHICLE_SPREAD: f64 = 0.3;
+
+/// Runs `n` synthetic vehicles (c log-uniform 0.1–0.4 mm, vehicle factor e^δ with δ ~
+/// N(0, VEHICLE_SPREAD), 30 events each at 60–90 km/h) through an estimator on `t`; returns
+/// (interval coverage, mean ln-width of the 90 % interval).
+fn fleet_coverage(t: &ResponseTable, n: usize, seed: u64) -> (f64, f64) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let nd = Normal::new(0.0, VEHICLE_SPREAD).unwrap();
+    let mut inside = 0;
+    let mut width = 0.0;
+    for _ in 0..n {
+        let c = (0.1f64.ln() + rand::Rng::random::<f64>(&mut rng) * 4f64.ln()).exp();
+        let d: f64 = nd.sample(&mut rng);
+        let mut e = Estimator::new(
+            t,
+            EstimatorConfig {
+                wear_var_per_km: 0.0,
+                // The synthetic table's spreads are exact: no model mismatch to widen for.
+                std_inflation: 1.0,
+                ..EstimatorConfig::default()
+            },
+        )
+        .unwrap();
+        for k in 0..30 {
+            let v = 60.0 + (k % 4) as f64 * 10.0;
+            let (r, p) = draw(&mut rng, c * d.exp(), v);
+            e.update(t, r, p, v, 0.5, k as f64 * 2000.0);
+        }
+        let s = e.summary();
+        inside += (s.q05_mm <= c && c <= s.q95_mm) as usize;
+        width += (s.q95_mm / s.q05_mm).ln();
+    }
+    (inside as f64 / n as f64, width / n as f64)
+}
+
+#[test]
+fn vehicle_level_nuisance_gives_honest_intervals_where_independent_events_do_not() {
+    // The table's 24 nuisance vehicles are drawn from the prior with their own seed; the test
+    // vehicles are fresh draws.
+    let mut rng = ChaCha8Rng::seed_from_u64(99);
+    let nd = Normal::new(0.0, VEHICLE_SPREAD).unwrap();
+    let deltas: Vec<f64> = (0..24).map(|_| nd.sample(&mut rng)).collect();
+    let mixture = nuisance_table(&deltas, None);
+    // Independent events: the nuisance spread folded into every event's spread.
+    let total = (SPREAD * SPREAD + VEHICLE_SPREAD * VEHICLE_SPREAD).sqrt();
+    let pooled = nuisance_table(&[0.0], Some(total));
+    let (cov_m, w_m) = fleet_coverage(&mixture, 150, 5);
+    let (cov_p, w_p) = fleet_coverage(&pooled, 150, 5);
+    eprintln!(
+        "mixture: coverage {cov_m}, ln-width {w_m}; independent: coverage {cov_p}, ln-width {w_p}"
+    );
+    assert!(
+        w_m > 1.4 * w_p,
+        "vehicle-level likelihood must widen the intervals: ln-widths {w_m} vs {w_p}"
+    );
+    assert!(
+        (0.8..=0.98).contains(&cov_m),
+        "90 % intervals with the vehicle-level likelihood cover {cov_m}"
+    );
+    assert!(
+        cov_p < 0.6,
+        "independent events are overconfident (coverage {cov_p}); if this passes the test \
+         case has no vehicle-level nuisance"
+    );
+}
+
+#[test]
+fn the_mixture_learns_which_nuisance_vehicle_it_is() {
+    // Two very different nuisance vehicles; the events of one must move the posterior onto it.
+    let t = nuisance_table(&[-0.5, 0.5], None);
+    let mut e = Estimator::new(&t, EstimatorConfig::default()).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    for k in 0..30 {
+        // c = 0.2 mm on vehicle 1 (factor e^0.5) at 40 km/h AND 80 km/h: the speed law is the
+        // same for both, so only the level identifies c·e^δ; the posterior keeps both
+        // (c = 0.2, δ = 0.5) and (c = 0.2·e, δ = −0.5), each a mode.
+        let v = if k % 2 == 0 { 40.0 } else { 80.0 };
+        let (r, p) = draw(&mut rng, 0.2 * 0.5f64.exp(), v);
+        e.update(&t, r, p, v, 0.5, k as f64 * 2000.0);
+    }
+    let pv: Vec<f64> = e.vehicle_probabilities().collect();
+    assert!((pv.iter().sum::<f64>() - 1.0).abs() < 1e-9);
+    let s = e.summary();
+    // The interval spans both explanations, 0.2 and 0.2·e^1 ≈ 0.54 mm.
+    assert!(s.q05_mm < 0.2 && s.q95_mm > 0.5, "{s:?}");
+}
+
+#[test]
+fn an_old_single_distribution_table_still_loads() {
+    let mut t = table();
+    t.format = shimmy::observer::table::FORMAT_V1.into();
+    assert!(t.validate().is_ok());
+    t.vehicles = 2;
+    assert!(t.validate().is_err(), "v1 tables have one nuisance set");
 }

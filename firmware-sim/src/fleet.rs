@@ -73,6 +73,26 @@ pub struct FleetArgs {
     /// Threads (default: all cores, or SHIMMY_THREADS).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Only simulate: write each vehicle's log and truth into --work-dir and stop (no
+    /// estimation, no scores). With --reuse, a later run estimates from them, e.g. with a
+    /// table finished after the logs were written.
+    #[arg(long, requires = "work_dir")]
+    pub logs_only: bool,
+    /// Reuse a vehicle's log from --work-dir when it and its `.eval.json` are there (written by
+    /// an earlier run with the same seed base, vehicles and events) instead of simulating it.
+    #[arg(long, requires = "work_dir")]
+    pub reuse: bool,
+}
+
+/// What the scores need from a vehicle's ground truth, kept next to its log for --reuse.
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
+pub struct EvalTruth {
+    pub seed: u64,
+    pub events: usize,
+    pub clearance_true_mm: f64,
+    /// True steering-wheel amplitudes of the events starting at 50–60 km/h (deg).
+    pub sw_amplitudes_55_deg: Vec<f64>,
+    pub events_true: usize,
 }
 
 /// One vehicle's outcome.
@@ -90,6 +110,8 @@ pub struct VehicleResult {
     pub shimmy_alert: bool,
     /// Mean true steering-wheel amplitude of events starting at 50–60 km/h (deg).
     pub true_sw_55_deg: Option<f64>,
+    /// Number of those events (the shimmy_55kmh rule needs `shimmy_confirm` of them).
+    pub events_55: usize,
     pub events_true: usize,
     pub events_recorded: usize,
     pub events_used: u32,
@@ -117,15 +139,18 @@ pub fn vehicle_scenario(
     s
 }
 
-fn one_vehicle(
-    k: usize,
-    args: &FleetArgs,
-    dir: &Path,
-    table: &ResponseTable,
-    cfg: &ObserverConfig,
-) -> anyhow::Result<VehicleResult> {
-    let t0 = Instant::now();
-    let seed = args.seed_base + k as u64;
+/// What a fleet vehicle is: its clearance, nuisance-drawn parameters, road-noise level and
+/// braking events (v0 km/h, decel g), all from its seed.
+#[derive(Clone, Debug)]
+pub struct VehiclePlan {
+    pub clearance_mm: f64,
+    pub params: VehicleParams,
+    pub road_noise_nm: f64,
+    pub events: Vec<(f64, f64)>,
+}
+
+/// The plan of the vehicle with `seed` (deterministic).
+pub fn vehicle_plan(seed: u64, n_events: usize) -> VehiclePlan {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     rng.set_stream(7);
     let c_mm = (0.03f64.ln() + rng.random::<f64>() * (0.4f64.ln() - 0.03f64.ln())).exp();
@@ -135,13 +160,48 @@ fn one_vehicle(
         &mut rng,
     );
     let noise = p.excitation.noise_std_nm * rng.random_range(0.7..1.4);
-    let events: Vec<(f64, f64)> = (0..args.events)
+    let events: Vec<(f64, f64)> = (0..n_events)
         .map(|_| {
             let v: f64 = rng.random_range(30.0..100.0);
             let d: f64 = rng.random_range(0.3..0.8);
             ((v * 10.0).round() / 10.0, (d * 100.0).round() / 100.0)
         })
         .collect();
+    VehiclePlan {
+        clearance_mm: c_mm,
+        params: p,
+        road_noise_nm: noise,
+        events,
+    }
+}
+
+/// Simulates vehicle `k` into `dir` (log, truth, `.eval.json`), or finds it there (--reuse).
+fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBuf, EvalTruth)> {
+    let seed = args.seed_base + k as u64;
+    let log = dir.join(format!("fleet_{seed}.log"));
+    let eval_path = log.with_extension("eval.json");
+    if args.reuse && log.exists() && eval_path.exists() {
+        let text = std::fs::read_to_string(&eval_path)?;
+        let e: EvalTruth = serde_json::from_str(&text)
+            .with_context(|| format!("{} is not a fleet eval file", eval_path.display()))?;
+        if e.seed != seed || e.events != args.events {
+            anyhow::bail!(
+                "{} is for seed {} with {} events, not seed {seed} with {}",
+                eval_path.display(),
+                e.seed,
+                e.events,
+                args.events
+            );
+        }
+        return Ok((log, e));
+    }
+    let plan = vehicle_plan(seed, args.events);
+    let (c_mm, p, noise, events) = (
+        plan.clearance_mm,
+        plan.params,
+        plan.road_noise_nm,
+        plan.events,
+    );
     let vfile = dir.join(format!("vehicle_{seed}.toml"));
     std::fs::write(&vfile, toml::to_string(&p)?)?;
     let text = vehicle_scenario(
@@ -176,6 +236,33 @@ fn one_vehicle(
     }
     let truth = sim.ground_truth();
     std::fs::write(log.with_extension("truth.json"), truth.to_json())?;
+    let eval = EvalTruth {
+        seed,
+        events: args.events,
+        clearance_true_mm: c_mm,
+        sw_amplitudes_55_deg: truth
+            .events
+            .iter()
+            .filter(|e| (50.0..=60.0).contains(&e.event.v0_kmh))
+            .map(|e| e.sw_amplitude_deg)
+            .collect(),
+        events_true: truth.events.len(),
+    };
+    std::fs::write(&eval_path, serde_json::to_string(&eval)?)?;
+    Ok((log, eval))
+}
+
+fn one_vehicle(
+    k: usize,
+    args: &FleetArgs,
+    dir: &Path,
+    table: &ResponseTable,
+    cfg: &ObserverConfig,
+) -> anyhow::Result<VehicleResult> {
+    let t0 = Instant::now();
+    let seed = args.seed_base + k as u64;
+    let (log, eval) = vehicle_log(k, args, dir)?;
+    let c_mm = eval.clearance_true_mm;
     let (report, _) = estimate_files(
         &args.mapping,
         None,
@@ -187,19 +274,13 @@ fn one_vehicle(
     if args.work_dir.is_none() {
         let _ = std::fs::remove_file(&log);
     }
-    let amps: Vec<f64> = truth
-        .events
-        .iter()
-        .filter(|e| (50.0..=60.0).contains(&e.event.v0_kmh))
-        .map(|e| e.sw_amplitude_deg)
-        .collect();
     Ok(result(
         k,
         seed,
         c_mm,
         &report,
-        &amps,
-        truth.events.len(),
+        &eval.sw_amplitudes_55_deg,
+        eval.events_true,
         t0,
     ))
 }
@@ -224,6 +305,7 @@ fn result(
         below_mm: r.below_mm,
         clearance_alert: r.alerts.iter().any(|a| a.kind == "clearance"),
         shimmy_alert: r.alerts.iter().any(|a| a.kind == "shimmy_55kmh"),
+        events_55: amps.len(),
         true_sw_55_deg: if amps.is_empty() {
             None
         } else {
@@ -338,6 +420,27 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
     let threads = args.threads.unwrap_or_else(default_threads);
     let t0 = Instant::now();
     let ks: Vec<usize> = (0..args.vehicles).collect();
+    if args.logs_only {
+        let done = par_map(&ks, threads, |&k| {
+            let r = vehicle_log(k, &args, &dir);
+            if r.is_ok() {
+                eprintln!("vehicle {k:>3}: log written");
+            }
+            r
+        });
+        for (k, r) in done.into_iter().enumerate() {
+            r.with_context(|| format!("fleet vehicle {k}"))?;
+        }
+        println!(
+            "fleet: {} vehicle logs x {} events, seed base {}, in {} ({:.0} s); no estimation (--logs-only)",
+            args.vehicles,
+            args.events,
+            args.seed_base,
+            dir.display(),
+            t0.elapsed().as_secs_f64()
+        );
+        return Ok(());
+    }
     let results = par_map(&ks, threads, |&k| {
         let r = one_vehicle(k, &args, &dir, &table, &cfg);
         if let Ok(v) = &r {
@@ -406,6 +509,20 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_vehicle_plan_is_fixed_by_its_seed_and_within_the_issue_ranges() {
+        let a = vehicle_plan(12345, 30);
+        let b = vehicle_plan(12345, 30);
+        assert_eq!(a.events, b.events);
+        assert_eq!(a.clearance_mm, b.clearance_mm);
+        assert!((0.03..=0.4).contains(&a.clearance_mm));
+        assert!(a
+            .events
+            .iter()
+            .all(|&(v, d)| (30.0..=100.0).contains(&v) && (0.3..=0.8).contains(&d)));
+        assert_ne!(vehicle_plan(12346, 30).events, a.events);
+    }
 
     #[test]
     fn generated_scenarios_parse() {

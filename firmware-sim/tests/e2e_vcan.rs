@@ -16,6 +16,9 @@
 //! (default 5× real time).
 #![cfg(target_os = "linux")]
 
+#[path = "../../tests/vcan_common/mod.rs"]
+mod vcan_common;
+
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::process::Command;
@@ -28,7 +31,7 @@ use shimmy::dbc::Database;
 use shimmy::signals::mapping::MappingConfig;
 use shimmy::signals::Mapper;
 use shimmy::source::log::LogReader;
-use shimmy::source::socketcan::{FilterId, LiveConfig, LiveSource};
+use shimmy::source::socketcan::{FilterId, LiveSource};
 use shimmy::source::CanSource;
 use shimmy::wire::Frame;
 
@@ -68,41 +71,18 @@ decel_g = 0.4
 duration_s = 0.7
 "#;
 
-fn required() -> bool {
-    std::env::var("SHIMMY_REQUIRE_VCAN").is_ok_and(|v| v == "1")
-}
-
-fn iface() -> Option<String> {
-    let name = std::env::var("SHIMMY_VCAN_IF").unwrap_or_else(|_| "vcan0".into());
-    if std::path::Path::new("/sys/class/net").join(&name).exists() {
-        return Some(name);
-    }
-    let why = format!(
-        "no CAN interface {name} (one-time setup: sudo modprobe vcan; sudo ip link add dev {name} \
-         type vcan; sudo ip link set up {name}; or let tests/vcan_vm.rs run this in QEMU)"
-    );
-    if required() {
-        panic!("SHIMMY_REQUIRE_VCAN=1 but {why}");
-    }
-    eprintln!("SKIPPED e2e_vcan: {why}");
-    None
-}
-
 /// The binary: cargo's path when it exists (host), else `firmware-sim` on PATH (the VM).
 fn binary() -> PathBuf {
-    let p = PathBuf::from(env!("CARGO_BIN_EXE_firmware-sim"));
-    if p.exists() {
-        p
-    } else {
-        PathBuf::from("firmware-sim")
-    }
+    vcan_common::executable(env!("CARGO_BIN_EXE_firmware-sim"), "firmware-sim")
 }
 
 #[test]
 // The child is reaped by `try_wait` in the loop (or killed and waited on at the time limit).
 #[allow(clippy::zombie_processes)]
 fn firmware_sim_on_vcan_is_read_and_decoded_live() {
-    let Some(ifname) = iface() else { return };
+    let Some(ifname) = vcan_common::iface("e2e_vcan") else {
+        return;
+    };
     let speed: f64 = std::env::var("SHIMMY_FWSIM_SPEED")
         .ok()
         .and_then(|s| s.parse().ok())
@@ -122,11 +102,9 @@ fn firmware_sim_on_vcan_is_read_and_decoded_live() {
             (db.messages()[i].id, m.message)
         })
         .collect();
-    let mut cfg = LiveConfig::new(&ifname);
-    cfg.ids = Some(ids.iter().map(|&(id, _)| FilterId::standard(id)).collect());
-    cfg.error_mask = 0;
-    cfg.read_timeout = Duration::from_millis(50);
-    let mut src = LiveSource::open(cfg).expect("open the CAN interface for reading");
+    let filter: Vec<FilterId> = ids.iter().map(|&(id, _)| FilterId::standard(id)).collect();
+    let mut src = LiveSource::open(vcan_common::reader_config(&ifname, &filter))
+        .expect("open the CAN interface for reading");
 
     let started = Instant::now();
     let mut child = Command::new(binary())
@@ -225,7 +203,7 @@ fn firmware_sim_on_vcan_is_read_and_decoded_live() {
     }
     // And what was sent is the library's deterministic run of the scenario (skipped in the VM,
     // where simulating twice would double the slowest part of the suite).
-    if !required() {
+    if !vcan_common::required() {
         let sc = Scenario::parse(SCENARIO, "e2e").unwrap();
         let expected: Vec<Frame> = FirmwareSim::new(
             &sc,

@@ -110,6 +110,17 @@ pub enum Transition {
     Cleared(Alert),
 }
 
+impl Transition {
+    /// `("raised" | "updated" | "cleared", the alert)`, as the journal and MQTT name them.
+    pub fn parts(&self) -> (&'static str, &Alert) {
+        match self {
+            Transition::Raised(a) => ("raised", a),
+            Transition::Updated(a) => ("updated", a),
+            Transition::Cleared(a) => ("cleared", a),
+        }
+    }
+}
+
 /// The open alerts and the memory the rules need.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]

@@ -14,23 +14,34 @@ use crate::analysis::sweep::{default_threads, par_map};
 use crate::events::median_in_place;
 use crate::model::VehicleParams;
 use crate::observer::sensor::SensorModel;
-use crate::observer::simulate::{perturb, simulate_event, NuisanceRanges, SimulatedEvent};
+use crate::observer::simulate::{
+    perturb_vehicle, simulate_event, EventShape, NuisanceRanges, SimulatedEvent,
+};
 use crate::observer::table::{vehicle_hash, Cell, ResponseTable, FORMAT};
 use crate::observer::ObserverConfig;
 
 /// Build the response table the clearance estimator needs.
 ///
-/// For every clearance × initial speed × deceleration of the grid, runs the shimmy model's
-/// braking event (MODEL.md §6) with SEEDS independent draws of the nuisances — unbalance phases
-/// and road noise (from the seed), unbalance magnitude (×0.5–2), ±10 % on the steering
-/// stiffnesses and dampings — passes the steering-wheel angle through the sensor model (100 Hz,
-/// 0.1 deg steps with a random sub-step offset, 0.01 deg noise; MODEL.md §8), runs the same
-/// event detector and feature code as `shimmy estimate`, and stores the distribution of
-/// (ln RMS, ln peak) of the band-passed angle per cell, plus a calibration of the true
-/// steering-wheel amplitude against the measured noise-corrected RMS.
+/// Draws VEHICLES nuisance vehicles from the prior of issue 5 — ±10 % on each steering
+/// stiffness and damping (k_s, c_s, k_t, k_g, c_g), unbalance ×0.5–2 (log-uniform), road noise
+/// ×0.7–1.4 — and simulates each of them at every clearance × initial speed × deceleration of
+/// the grid (SEEDS events per cell, each with its own unbalance phases and road-noise
+/// realisation). An event is simulated the way a vehicle on the road sees it (--shape drive:
+/// cruising at the initial speed first, no initial kick, firmware-sim's brake pedal law to a
+/// stop and a 1 s hold; --shape single: MODEL.md §6's event from a kick). The steering-wheel
+/// angle goes through the sensor model (100 Hz, 0.1 deg steps with a random sub-step offset,
+/// 0.01 deg noise, the driver's slow lane keeping; MODEL.md §8), then through the same event
+/// detector and feature code as `shimmy estimate`.
+///
+/// Each cell holds, for ONE nuisance vehicle, the mean of (ln RMS, ln peak) of the band-passed
+/// angle (averaged over deceleration and made monotone in clearance) and the event-to-event
+/// spread around it (pooled per clearance). `shimmy estimate` mixes over the vehicles, so the
+/// nuisances count once per vehicle, not once per event. The table also calibrates the true
+/// steering-wheel amplitude against the measured noise-corrected RMS (shimmy_55kmh alert).
 ///
 /// The table records a hash of the vehicle parameters; `shimmy estimate` refuses a table built
-/// for other parameters. Runs on all cores (SHIMMY_THREADS to limit).
+/// for other parameters. Runs on all cores (SHIMMY_THREADS to limit). Model events:
+/// CLEARANCES × VEHICLES × speeds × decels × SEEDS.
 ///
 /// Example:
 ///   shimmy calibrate --vehicle vehicle.toml --out table.json
@@ -46,24 +57,32 @@ pub struct Args {
     pub out: PathBuf,
 
     /// Number of clearances, log-spaced over --clearance-range.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = 12)]
     pub clearances: usize,
 
     /// Clearance range (mm), "LOW,HIGH".
-    #[arg(long, value_delimiter = ',', default_value = "0.02,0.5")]
+    #[arg(long, value_delimiter = ',', default_value = "0.02,0.6")]
     pub clearance_range: Vec<f64>,
 
-    /// Initial speeds (km/h).
-    #[arg(long, value_delimiter = ',', default_value = "30,45,60,80,100,120")]
+    /// Nuisance vehicles drawn from the prior (the same ones at every clearance).
+    #[arg(long, default_value_t = 10)]
+    pub vehicles: u32,
+
+    /// Initial speeds (km/h). Events outside are predicted from the nearest speed.
+    #[arg(long, value_delimiter = ',', default_value = "30,42,55,70,85,100")]
     pub speeds: Vec<f64>,
 
     /// Decelerations (g).
-    #[arg(long, value_delimiter = ',', default_value = "0.3,0.55,0.8")]
+    #[arg(long, value_delimiter = ',', default_value = "0.3,0.8")]
     pub decels: Vec<f64>,
 
-    /// Seeds (nuisance draws) per cell.
-    #[arg(long, default_value_t = 3)]
+    /// Events (unbalance phase / road-noise realisations) per vehicle and cell.
+    #[arg(long, default_value_t = 1)]
     pub seeds: u32,
+
+    /// How each event starts: drive (cruise first, as on the road) or single (MODEL.md §6).
+    #[arg(long, default_value = "drive", value_parser = ["drive", "single"])]
+    pub shape: String,
 
     /// First seed (keep tuning, table and validation seeds apart).
     #[arg(long, default_value_t = 1_000_000)]
@@ -76,6 +95,17 @@ pub struct Args {
     /// Threads (default: all cores, or SHIMMY_THREADS).
     #[arg(long)]
     pub threads: Option<usize>,
+
+    /// No model runs: read this table (built by an earlier `shimmy calibrate` with per-vehicle
+    /// means) and re-fit its cell means with the additive vehicle model (see --per-vehicle).
+    #[arg(long, value_name = "TABLE")]
+    pub refit: Option<PathBuf>,
+
+    /// Keep each nuisance vehicle's own mean per cell (noisy with few events per cell) instead of
+    /// the additive vehicle model: mean(c, vehicle, speed) = nominal(c, speed) + offset(c,
+    /// vehicle), whose vehicle × speed remainder is added to the event spread.
+    #[arg(long)]
+    pub per_vehicle: bool,
 }
 
 /// Smallest spread of ln(feature) stored in a cell.
@@ -91,43 +121,107 @@ pub fn log_grid(lo: f64, hi: f64, n: usize) -> Vec<f64> {
         .collect()
 }
 
-/// Mean, std (floored) and correlation of paired samples.
-fn cell_stats(z: &[[f64; 2]]) -> Cell {
+/// Mean of paired samples.
+fn mean2(z: &[[f64; 2]]) -> [f64; 2] {
     let n = z.len().max(1) as f64;
-    let m = [
+    [
         z.iter().map(|p| p[0]).sum::<f64>() / n,
         z.iter().map(|p| p[1]).sum::<f64>() / n,
-    ];
-    let dof = (z.len() as f64 - 1.0).max(1.0);
-    let var = |k: usize| z.iter().map(|p| (p[k] - m[k]).powi(2)).sum::<f64>() / dof;
-    let cov = z.iter().map(|p| (p[0] - m[0]) * (p[1] - m[1])).sum::<f64>() / dof;
-    let (s0, s1) = (var(0).sqrt(), var(1).sqrt());
-    let corr = if s0 > 0.0 && s1 > 0.0 {
-        (cov / (s0 * s1)).clamp(-0.95, 0.95)
+    ]
+}
+
+/// Event-to-event spread of one vehicle, pooled over all cells of one clearance: the residuals
+/// of the events about their (smoothed) cell means, with `groups` means fitted, widened by
+/// `sqrt(1 + 1/per_group)` for the error of a cell mean estimated from `per_group` events (the
+/// predictive spread of a new event). Returns (std, corr), std floored at [`MIN_STD`].
+fn pooled_spread(res: &[[f64; 2]], groups: usize, per_group: usize) -> ([f64; 2], f64) {
+    let dof = (res.len() as f64 - groups as f64).max(1.0);
+    let v0 = res.iter().map(|r| r[0] * r[0]).sum::<f64>() / dof;
+    let v1 = res.iter().map(|r| r[1] * r[1]).sum::<f64>() / dof;
+    let c = res.iter().map(|r| r[0] * r[1]).sum::<f64>() / dof;
+    let corr = if v0 > 0.0 && v1 > 0.0 {
+        (c / (v0 * v1).sqrt()).clamp(-0.95, 0.95)
     } else {
         0.0
     };
-    Cell {
-        mean: m,
-        std: [s0.max(MIN_STD), s1.max(MIN_STD)],
+    let k = (1.0 + 1.0 / per_group.max(1) as f64).sqrt();
+    (
+        [(v0.sqrt() * k).max(MIN_STD), (v1.sqrt() * k).max(MIN_STD)],
         corr,
-    }
+    )
 }
 
-/// Replaces each cell's spread and correlation by the pooled values over all cells of the
-/// same clearance (`per_clearance` consecutive cells): with a few seeds per cell, one cell's
-/// standard deviation is a poor estimate, while the spread in ln(feature) changes little with
-/// speed and deceleration. Means stay per cell.
-fn pool_spread(cells: &mut [Cell], per_clearance: usize) {
-    for group in cells.chunks_mut(per_clearance.max(1)) {
-        let n = group.len() as f64;
-        let v0 = group.iter().map(|c| c.std[0].powi(2)).sum::<f64>() / n;
-        let v1 = group.iter().map(|c| c.std[1].powi(2)).sum::<f64>() / n;
-        let r = group.iter().map(|c| c.corr).sum::<f64>() / n;
-        for c in group.iter_mut() {
-            c.std = [v0.sqrt().max(MIN_STD), v1.sqrt().max(MIN_STD)];
-            c.corr = r.clamp(-0.95, 0.95);
+/// Re-fits the cell means of `t` (already averaged over deceleration) with the additive vehicle
+/// model, per clearance and feature: mean(m, v) = nominal(v) + offset(m), nominal the mean over
+/// the nuisance vehicles, offset the vehicle's mean deviation over the speeds. Each vehicle's
+/// level then rests on all its events (nv · per_cell of them) instead of the per_cell events of
+/// one cell. What the fit leaves (the vehicle × speed interaction, less the cells' own sampling
+/// noise) is added to the event spread, together with the fit's sampling error. `per_cell` is
+/// the number of events behind each (vehicle, speed) mean; the stored spreads are taken as
+/// σ·sqrt(1 + 1/per_cell), as [`pooled_spread`] writes them. Then isotonic in clearance again.
+pub fn fit_additive(t: &mut ResponseTable, per_cell: usize) {
+    let (nc, nm, nv, nd) = (
+        t.clearance_mm.len(),
+        t.n_vehicles(),
+        t.speed_kmh.len(),
+        t.decel_g.len(),
+    );
+    if nm < 2 || nv < 2 {
+        return;
+    }
+    let ne = per_cell.max(1) as f64;
+    let idx = |ic: usize, im: usize, iv: usize, id: usize| ((ic * nm + im) * nv + iv) * nd + id;
+    for ic in 0..nc {
+        for k in 0..2 {
+            let m = |im: usize, iv: usize| t.cells[idx(ic, im, iv, 0)].mean[k];
+            let nominal: Vec<f64> = (0..nv)
+                .map(|iv| (0..nm).map(|im| m(im, iv)).sum::<f64>() / nm as f64)
+                .collect();
+            let offset: Vec<f64> = (0..nm)
+                .map(|im| (0..nv).map(|iv| m(im, iv) - nominal[iv]).sum::<f64>() / nv as f64)
+                .collect();
+            let mut r2 = 0.0;
+            for im in 0..nm {
+                for (iv, nom) in nominal.iter().enumerate() {
+                    r2 += (m(im, iv) - nom - offset[im]).powi(2);
+                }
+            }
+            let resid_var = r2 / ((nm - 1) * (nv - 1)) as f64;
+            let s = t.cells[idx(ic, 0, 0, 0)].std[k];
+            let within_var = s * s / (1.0 + 1.0 / ne);
+            let interaction = (resid_var - within_var / ne).max(0.0);
+            let pred = (within_var * (1.0 + 1.0 / (nm as f64 * ne) + 1.0 / (nv as f64 * ne))
+                + interaction)
+                .sqrt()
+                .max(MIN_STD);
+            for im in 0..nm {
+                for (iv, nom) in nominal.iter().enumerate() {
+                    for id in 0..nd {
+                        let c = &mut t.cells[idx(ic, im, iv, id)];
+                        c.mean[k] = nom + offset[im];
+                        c.std[k] = pred;
+                    }
+                }
+            }
         }
+    }
+    t.smooth();
+}
+
+/// Replaces every cell's spread and correlation by their pooled values over the whole table
+/// (root mean square of the spreads, mean correlation). The event-to-event spread estimated
+/// per clearance is noisy, and the likelihood's normalising term turns spread differences
+/// between clearances into evidence: over 30 events a clearance whose estimated spread happens
+/// to be a factor 2 smaller gains ~20 nats whatever the data. One spread leaves the
+/// identification to the means.
+pub fn pool_spread_globally(t: &mut ResponseTable) {
+    let n = t.cells.len().max(1) as f64;
+    let v0 = t.cells.iter().map(|c| c.std[0].powi(2)).sum::<f64>() / n;
+    let v1 = t.cells.iter().map(|c| c.std[1].powi(2)).sum::<f64>() / n;
+    let r = t.cells.iter().map(|c| c.corr).sum::<f64>() / n;
+    for c in &mut t.cells {
+        c.std = [v0.sqrt().max(MIN_STD), v1.sqrt().max(MIN_STD)];
+        c.corr = r.clamp(-0.95, 0.95);
     }
 }
 
@@ -159,77 +253,164 @@ fn amp_map(pairs: &mut [(f64, f64)], bins: usize) -> Vec<[f64; 2]> {
     out
 }
 
+/// The grid and sampling of a table build.
+#[derive(Clone, Debug)]
+pub struct Grid {
+    pub clearance_mm: Vec<f64>,
+    pub speed_kmh: Vec<f64>,
+    pub decel_g: Vec<f64>,
+    /// Nuisance vehicles M.
+    pub vehicles: u32,
+    /// Events per vehicle and cell.
+    pub seeds: u32,
+    pub shape: EventShape,
+    pub seed_base: u64,
+    /// Fit the additive vehicle model ([`fit_additive`]) to the cell means.
+    pub additive: bool,
+}
+
+impl Grid {
+    pub fn n_events(&self) -> usize {
+        self.clearance_mm.len()
+            * self.vehicles as usize
+            * self.speed_kmh.len()
+            * self.decel_g.len()
+            * self.seeds as usize
+    }
+}
+
+/// The nuisance vehicle `im` of a table built from `seed_base` (the same at every clearance).
+pub fn nuisance_vehicle(
+    nominal: &VehicleParams,
+    ranges: &NuisanceRanges,
+    seed_base: u64,
+    im: u32,
+) -> VehicleParams {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed_base.wrapping_add(im as u64));
+    rng.set_stream(11);
+    perturb_vehicle(nominal, ranges, &mut rng)
+}
+
 /// Builds the table (the work of `shimmy calibrate`), on `threads` threads.
-#[allow(clippy::too_many_arguments)]
 pub fn build_table(
     vehicle: &VehicleParams,
-    clearance_mm: Vec<f64>,
-    speed_kmh: Vec<f64>,
-    decel_g: Vec<f64>,
-    seeds: u32,
-    seed_base: u64,
+    grid: &Grid,
     cfg: &ObserverConfig,
     threads: usize,
 ) -> anyhow::Result<ResponseTable> {
     let sensor = SensorModel::default();
     let ranges = NuisanceRanges::default();
-    let mut jobs = Vec::new();
-    for (ic, &c) in clearance_mm.iter().enumerate() {
-        for (iv, &v) in speed_kmh.iter().enumerate() {
-            for (id, &d) in decel_g.iter().enumerate() {
-                for s in 0..seeds {
-                    let seed = seed_base
-                        + (((ic * speed_kmh.len() + iv) * decel_g.len() + id) as u64)
-                            * seeds as u64
-                        + s as u64;
-                    jobs.push((c, v, d, seed));
+    if grid.vehicles == 0 || grid.seeds == 0 {
+        anyhow::bail!("--vehicles and --seeds must be at least 1");
+    }
+    let vehicles: Vec<VehicleParams> = (0..grid.vehicles)
+        .map(|im| nuisance_vehicle(vehicle, &ranges, grid.seed_base, im))
+        .collect();
+    let (nm, nv, nd, ns) = (
+        grid.vehicles as usize,
+        grid.speed_kmh.len(),
+        grid.decel_g.len(),
+        grid.seeds as usize,
+    );
+    // Jobs in cell order: ((ic · M + im) · nv + iv) · nd + id, then seed.
+    let mut jobs = Vec::with_capacity(grid.n_events());
+    for (ic, &c) in grid.clearance_mm.iter().enumerate() {
+        for im in 0..nm {
+            for &v in &grid.speed_kmh {
+                for &d in &grid.decel_g {
+                    for _ in 0..ns {
+                        let seed = grid.seed_base + 10_000 + jobs.len() as u64;
+                        jobs.push((ic, c, im, v, d, seed));
+                    }
                 }
             }
         }
     }
     let results: Vec<anyhow::Result<SimulatedEvent>> =
-        par_map(&jobs, threads, |&(c, v, d, seed)| {
-            let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            let p = perturb(vehicle, &ranges, &mut rng);
-            simulate_event(&p, c * 1e-3, v / 3.6, d, seed, &sensor, cfg)
+        par_map(&jobs, threads, |&(_, c, im, v, d, seed)| {
+            simulate_event(
+                &vehicles[im],
+                c * 1e-3,
+                v / 3.6,
+                d,
+                seed,
+                grid.shape,
+                &sensor,
+                cfg,
+            )
         });
-    let per_cell = seeds as usize;
-    let mut cells = Vec::with_capacity(jobs.len() / per_cell.max(1));
+    let mut z_all = Vec::with_capacity(jobs.len());
     let mut pairs = Vec::with_capacity(jobs.len());
-    for (k, chunk) in results.chunks(per_cell).enumerate() {
-        let mut z = Vec::with_capacity(per_cell);
-        for (j, r) in chunk.iter().enumerate() {
-            let (c, v, d, seed) = jobs[k * per_cell + j];
-            let e = r
-                .as_ref()
-                .map_err(|e| anyhow::anyhow!("{e:#}"))
-                .with_context(|| format!("simulating c = {c} mm, {v} km/h, {d} g, seed {seed}"))?;
-            let f = &e.features;
-            z.push(crate::observer::features::z(f.rms_deg, f.peak_deg));
-            pairs.push((f.excess_rms_deg, e.true_peak_deg));
-        }
-        cells.push(cell_stats(&z));
+    for (r, &(_, c, im, v, d, seed)) in results.iter().zip(&jobs) {
+        let e = r
+            .as_ref()
+            .map_err(|e| anyhow::anyhow!("{e:#}"))
+            .with_context(|| {
+                format!("simulating c = {c} mm, vehicle {im}, {v} km/h, {d} g, seed {seed}")
+            })?;
+        let f = &e.features;
+        z_all.push(crate::observer::features::z(f.rms_deg, f.peak_deg));
+        pairs.push((f.excess_rms_deg, e.true_peak_deg));
     }
-    pool_spread(&mut cells, speed_kmh.len() * decel_g.len());
+    let mut cells: Vec<Cell> = z_all
+        .chunks(ns)
+        .map(|z| Cell {
+            mean: mean2(z),
+            std: [1.0, 1.0],
+            corr: 0.0,
+        })
+        .collect();
     let amp = amp_map(&mut pairs, 24);
     let mut t = ResponseTable {
         format: FORMAT.into(),
         vehicle_hash: vehicle_hash(vehicle)?,
         sensor,
-        clearance_mm,
-        speed_kmh,
-        decel_g,
-        seeds,
-        cells,
+        clearance_mm: grid.clearance_mm.clone(),
+        speed_kmh: grid.speed_kmh.clone(),
+        decel_g: grid.decel_g.clone(),
+        vehicles: grid.vehicles,
+        seeds: grid.seeds,
+        cells: std::mem::take(&mut cells),
         amp_map: amp,
         provenance: format!(
-            "shimmy calibrate {}; nuisances: unbalance x{:?}, stiffness/damping ±{:.0} %, seed_base {seed_base}",
+            "shimmy calibrate {}; {} nuisance vehicles (unbalance x{:?}, stiffness/damping ±{:.0} %, \
+             road noise x{:?}), {} events per vehicle and cell, shape {:?}, seed_base {}",
             env!("CARGO_PKG_VERSION"),
+            grid.vehicles,
             ranges.unbalance_factor,
-            ranges.stiffness_damping_rel * 100.0
+            ranges.stiffness_damping_rel * 100.0,
+            ranges.road_noise_factor,
+            grid.seeds,
+            grid.shape,
+            grid.seed_base
         ),
     };
+    // Means: averaged over deceleration, monotone in clearance, per vehicle and speed.
     t.smooth();
+    // Spread of one vehicle's events about its smoothed means, pooled per clearance.
+    let per_clearance = nm * nv * nd;
+    for ic in 0..grid.clearance_mm.len() {
+        let cell0 = ic * per_clearance;
+        let res: Vec<[f64; 2]> = (0..per_clearance)
+            .flat_map(|k| {
+                let m = t.cells[cell0 + k].mean;
+                z_all[(cell0 + k) * ns..(cell0 + k + 1) * ns]
+                    .iter()
+                    .map(move |z| [z[0] - m[0], z[1] - m[1]])
+            })
+            .collect();
+        let (std, corr) = pooled_spread(&res, nm * nv, nd * ns);
+        for c in &mut t.cells[cell0..cell0 + per_clearance] {
+            c.std = std;
+            c.corr = corr;
+        }
+    }
+    if grid.additive {
+        fit_additive(&mut t, nd * ns);
+        t.provenance += "; additive vehicle model";
+    }
+    pool_spread_globally(&mut t);
+    t.provenance += "; one pooled spread";
     t.validate()?;
     Ok(t)
 }
@@ -248,18 +429,46 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let threads = args.threads.unwrap_or_else(default_threads);
     let t0 = Instant::now();
-    let n_runs = args.clearances * args.speeds.len() * args.decels.len() * args.seeds as usize;
-    eprintln!("shimmy calibrate: {n_runs} model runs on {threads} threads");
-    let table = build_table(
-        &vehicle,
-        log_grid(lo, hi, args.clearances),
-        args.speeds.clone(),
-        args.decels.clone(),
-        args.seeds,
-        args.seed_base,
-        &cfg,
-        threads,
-    )?;
+    if let Some(src) = &args.refit {
+        let mut t = ResponseTable::load(src)?;
+        t.check_vehicle(&vehicle_hash(&vehicle)?)?;
+        if t.provenance.contains("additive") {
+            anyhow::bail!("{} already has the additive vehicle model", src.display());
+        }
+        let per_cell = t.decel_g.len() * t.seeds.max(1) as usize;
+        fit_additive(&mut t, per_cell);
+        pool_spread_globally(&mut t);
+        t.provenance += "; additive vehicle model (refit); one pooled spread";
+        t.validate()?;
+        let json = serde_json::to_string(&t)?;
+        std::fs::write(&args.out, &json)
+            .with_context(|| format!("cannot write {}", args.out.display()))?;
+        eprintln!(
+            "shimmy calibrate: refitted {} into {}",
+            src.display(),
+            args.out.display()
+        );
+        return Ok(());
+    }
+    let grid = Grid {
+        clearance_mm: log_grid(lo, hi, args.clearances),
+        speed_kmh: args.speeds.clone(),
+        decel_g: args.decels.clone(),
+        vehicles: args.vehicles,
+        seeds: args.seeds,
+        shape: if args.shape == "single" {
+            EventShape::Single
+        } else {
+            EventShape::DRIVE
+        },
+        seed_base: args.seed_base,
+        additive: !args.per_vehicle,
+    };
+    eprintln!(
+        "shimmy calibrate: {} model runs on {threads} threads",
+        grid.n_events()
+    );
+    let table = build_table(&vehicle, &grid, &cfg, threads)?;
     let json = serde_json::to_string(&table)?;
     std::fs::write(&args.out, &json)
         .with_context(|| format!("cannot write {}", args.out.display()))?;
@@ -271,4 +480,66 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         t0.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A table whose per-vehicle means are nominal(v) + offset(m) + interaction(m, v).
+    fn table(interaction: f64) -> ResponseTable {
+        let (nm, nv) = (4usize, 3usize);
+        let mut cells = Vec::new();
+        for ic in 0..2 {
+            for im in 0..nm {
+                for iv in 0..nv {
+                    let inter = if (im + iv) % 2 == 0 {
+                        interaction
+                    } else {
+                        -interaction
+                    };
+                    let m = ic as f64 + 0.1 * iv as f64 + 0.2 * im as f64 + inter;
+                    cells.push(Cell {
+                        mean: [m, m + 1.0],
+                        std: [0.2, 0.2],
+                        corr: 0.5,
+                    });
+                }
+            }
+        }
+        ResponseTable {
+            format: FORMAT.into(),
+            vehicle_hash: "x".into(),
+            sensor: SensorModel::default(),
+            clearance_mm: vec![0.1, 0.2],
+            speed_kmh: vec![40.0, 60.0, 80.0],
+            decel_g: vec![0.5],
+            vehicles: nm as u32,
+            seeds: 2,
+            cells,
+            amp_map: vec![],
+            provenance: String::new(),
+        }
+    }
+
+    #[test]
+    fn additive_fit_keeps_an_additive_law_and_moves_interaction_into_the_spread() {
+        let mut t = table(0.0);
+        let before = t.clone();
+        fit_additive(&mut t, 2);
+        for (a, b) in t.cells.iter().zip(&before.cells) {
+            assert!((a.mean[0] - b.mean[0]).abs() < 1e-12, "{a:?} vs {b:?}");
+            // Only the fit's sampling error is added: 0.2 · sqrt((1 + 1/8 + 1/6) / 1.5).
+            let want = 0.2 * ((1.0 + 1.0 / 8.0 + 1.0 / 6.0) / 1.5f64).sqrt();
+            assert!((a.std[0] - want).abs() < 1e-9, "{}", a.std[0]);
+        }
+        let mut u = table(0.3);
+        fit_additive(&mut u, 2);
+        assert!(u.cells[0].std[0] > 0.3, "interaction goes into the spread");
+        // The fitted means are additive: vehicle differences are the same at every speed.
+        let m = |t: &ResponseTable, im: usize, iv: usize| t.cells[im * 3 + iv].mean[0];
+        let d0 = m(&u, 1, 0) - m(&u, 0, 0);
+        assert!((m(&u, 1, 2) - m(&u, 0, 2) - d0).abs() < 1e-9);
+        u.validate().unwrap();
+    }
 }

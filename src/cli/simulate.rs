@@ -60,9 +60,16 @@ pub struct Args {
     /// Turn the road noise off (MODEL.md §7).
     #[arg(long)]
     pub no_noise: bool,
-    /// Integration scheme: rk4 (MODEL.md §10 as specified) or rk4-warm-slip (same scheme,
-    /// braking-slip Newton iteration warm-started; same result, faster).
-    #[arg(long, default_value = "rk4", value_parser = ["rk4", "rk4-warm-slip"])]
+    /// Integration scheme (docs/BENCHMARKS.md gives the CPU time and the error of each
+    /// against an h = 1e-5 s reference): rk4 (MODEL.md §10 as specified); rk4-warm-slip (same
+    /// result, braking-slip Newton iteration warm-started); rk4-multirate (RK4 on the same
+    /// grid, tire forces once per step and extrapolated over the stages); rk4-adaptive
+    /// (rk4-multirate in and near contact, merged steps of up to 10·h in free flight).
+    /// Underscores are accepted for hyphens (rk4_adaptive, the serde name).
+    #[arg(long, default_value = "rk4", value_parser = [
+        "rk4", "rk4-warm-slip", "rk4-multirate", "rk4-adaptive",
+        "rk4_warm_slip", "rk4_multirate", "rk4_adaptive",
+    ])]
     pub integrator: String,
 }
 
@@ -115,10 +122,8 @@ pub fn scenario(args: &Args) -> anyhow::Result<Scenario> {
         h_s: args.h_s,
         unbalance: !args.no_unbalance,
         noise: !args.no_noise,
-        integrator: match args.integrator.as_str() {
-            "rk4-warm-slip" => Integrator::Rk4WarmSlip,
-            _ => Integrator::Rk4,
-        },
+        integrator: Integrator::from_name(&args.integrator)
+            .with_context(|| format!("unknown --integrator {}", args.integrator))?,
         ..Scenario::default()
     };
     sc.validate()?;
@@ -167,6 +172,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         m.insert("single".into(), serde_json::json!(args.single));
         m.insert("seed".into(), serde_json::json!(args.seed));
         m.insert("h_s".into(), serde_json::json!(args.h_s));
+        m.insert("integrator".into(), serde_json::json!(sc.integrator.name()));
         println!("{}", serde_json::to_string(&obj)?);
     }
     Ok(())

@@ -14,6 +14,8 @@ use anyhow::{bail, Context};
 use serde::{Deserialize, Serialize};
 
 use crate::journal::{FsyncPolicy, JournalConfig};
+use crate::observer::estimator::EstimatorConfig;
+use crate::observer::FeatureConfig;
 
 /// The whole file.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -29,6 +31,10 @@ pub struct Config {
     pub outputs: Outputs,
     #[serde(default)]
     pub log: LogSection,
+    #[serde(default)]
+    pub observer: ObserverSection,
+    #[serde(default)]
+    pub mqtt: MqttSection,
 }
 
 /// `[input]`: where frames come from and how to read them.
@@ -184,6 +190,64 @@ impl Default for LogSection {
     }
 }
 
+/// `[observer]`: the clearance observer's feature and estimator settings (the same keys as
+/// `[features]` and `[estimator]` of config/observer.toml, see [`crate::observer`]); every key
+/// optional, defaults as there. Detection thresholds are `[events]` above.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ObserverSection {
+    pub features: FeatureConfig,
+    pub estimator: EstimatorConfig,
+}
+
+/// `[mqtt]`: the optional outgoing MQTT client to a fleet backend ([`super::mqtt`]). Off unless
+/// `enabled = true`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MqttSection {
+    pub enabled: bool,
+    /// Broker host name or address (required when enabled).
+    pub host: String,
+    pub port: u16,
+    /// MQTT client id (required when enabled); also the vehicle's name in topics and ids.
+    pub client_id: String,
+    /// Topics are `<topic_prefix>/<client_id>/event` and `.../alert`.
+    pub topic_prefix: String,
+    /// 0, 1 or 2. 1 (at least once) or 2 are needed for the no-loss guarantee.
+    pub qos: u8,
+    pub keep_alive_s: u64,
+    /// Pause between connection attempts while the broker is unreachable (s).
+    pub reconnect_s: f64,
+    /// The on-disk outbox; default `<state_dir>/mqtt-outbox`.
+    pub queue_dir: Option<PathBuf>,
+    /// Outbox bound: beyond either limit the oldest queued messages are dropped (counted,
+    /// logged, and reported to the backend in every message's `queue_dropped`).
+    pub queue_max_messages: usize,
+    pub queue_max_mib: f64,
+    /// On stop, wait up to this long for the outbox to drain (s); the rest is sent after the
+    /// next start.
+    pub drain_timeout_s: f64,
+}
+
+impl Default for MqttSection {
+    fn default() -> Self {
+        MqttSection {
+            enabled: false,
+            host: String::new(),
+            port: 1883,
+            client_id: String::new(),
+            topic_prefix: "shimmy".into(),
+            qos: 1,
+            keep_alive_s: 30,
+            reconnect_s: 2.0,
+            queue_dir: None,
+            queue_max_messages: 10_000,
+            queue_max_mib: 8.0,
+            drain_timeout_s: 2.0,
+        }
+    }
+}
+
 fn positive(key: &str, v: f64) -> anyhow::Result<()> {
     if !(v.is_finite() && v > 0.0) {
         bail!("{key}: must be > 0 (got {v})");
@@ -240,6 +304,9 @@ impl Config {
         }
         fix(&mut self.outputs.journal_dir);
         fix(&mut self.outputs.state_dir);
+        if let Some(p) = self.mqtt.queue_dir.as_mut() {
+            fix(p);
+        }
     }
 
     /// The checks serde cannot express.
@@ -365,6 +432,108 @@ impl Config {
         }
         if self.log.counters_interval_s == 0 {
             bail!("log.counters_interval_s: must be >= 1");
+        }
+        self.validate_observer()?;
+        self.validate_mqtt()
+    }
+
+    fn validate_observer(&self) -> anyhow::Result<()> {
+        let f = &self.observer.features;
+        positive("observer.features.crest_factor", f.crest_factor)?;
+        if !(f.sensor.quant_step_deg.is_finite() && f.sensor.quant_step_deg >= 0.0) {
+            bail!(
+                "observer.features.sensor.quant_step_deg: must be >= 0 (0 = measured per event) (got {})",
+                f.sensor.quant_step_deg
+            );
+        }
+        if !(f.sensor.noise_deg.is_finite() && f.sensor.noise_deg >= 0.0) {
+            bail!(
+                "observer.features.sensor.noise_deg: must be >= 0 (got {})",
+                f.sensor.noise_deg
+            );
+        }
+        let e = &self.observer.estimator;
+        positive("observer.estimator.std_inflation", e.std_inflation)?;
+        probability("observer.estimator.outlier_floor", e.outlier_floor)?;
+        if !(e.wear_var_per_km.is_finite() && e.wear_var_per_km >= 0.0) {
+            bail!(
+                "observer.estimator.wear_var_per_km: must be >= 0 (got {})",
+                e.wear_var_per_km
+            );
+        }
+        positive(
+            "observer.estimator.detection_limit_mm",
+            e.detection_limit_mm,
+        )?;
+        if !matches!(e.features.as_str(), "rms" | "peak" | "both") {
+            bail!(
+                "observer.estimator.features: must be \"rms\", \"peak\" or \"both\" (got \"{}\")",
+                e.features
+            );
+        }
+        Ok(())
+    }
+
+    /// Ranges are checked whether or not MQTT is enabled (a typo should not wait until the day
+    /// it is switched on); host and client id are required only when enabled.
+    fn validate_mqtt(&self) -> anyhow::Result<()> {
+        let m = &self.mqtt;
+        if m.enabled && m.host.trim().is_empty() {
+            bail!("mqtt.host: required when mqtt.enabled = true");
+        }
+        if m.port == 0 {
+            bail!("mqtt.port: must be 1..=65535");
+        }
+        let topic_safe = |s: &str| !s.is_empty() && !s.contains(['+', '#', '\0']);
+        if (m.enabled || !m.client_id.is_empty())
+            && (!topic_safe(&m.client_id) || m.client_id.contains('/') || m.client_id.len() > 64)
+        {
+            bail!(
+                "mqtt.client_id: required when mqtt.enabled = true; 1-64 characters without '/', '+' or '#' (got \"{}\")",
+                m.client_id
+            );
+        }
+        if !topic_safe(&m.topic_prefix)
+            || m.topic_prefix.starts_with('/')
+            || m.topic_prefix.ends_with('/')
+        {
+            bail!(
+                "mqtt.topic_prefix: must be a topic without wildcards ('+', '#') or leading/trailing '/' (got \"{}\")",
+                m.topic_prefix
+            );
+        }
+        if m.qos > 2 {
+            bail!("mqtt.qos: must be 0, 1 or 2 (got {})", m.qos);
+        }
+        if !(5..=3600).contains(&m.keep_alive_s) {
+            bail!(
+                "mqtt.keep_alive_s: must be 5..=3600 (got {})",
+                m.keep_alive_s
+            );
+        }
+        if !(m.reconnect_s.is_finite() && (0.05..=3600.0).contains(&m.reconnect_s)) {
+            bail!(
+                "mqtt.reconnect_s: must be 0.05..=3600 (got {})",
+                m.reconnect_s
+            );
+        }
+        if m.queue_max_messages == 0 || m.queue_max_messages > 1_000_000 {
+            bail!(
+                "mqtt.queue_max_messages: must be 1..=1000000 (got {})",
+                m.queue_max_messages
+            );
+        }
+        if !(m.queue_max_mib.is_finite() && (0.001..=1024.0).contains(&m.queue_max_mib)) {
+            bail!(
+                "mqtt.queue_max_mib: must be 0.001..=1024 (got {})",
+                m.queue_max_mib
+            );
+        }
+        if !(m.drain_timeout_s.is_finite() && (0.0..=600.0).contains(&m.drain_timeout_s)) {
+            bail!(
+                "mqtt.drain_timeout_s: must be 0..=600 (got {})",
+                m.drain_timeout_s
+            );
         }
         Ok(())
     }

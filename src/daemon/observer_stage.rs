@@ -2,16 +2,58 @@
 //! ([`crate::observer::Observer`], issue 5): converts the daemon's samples, hands each newly
 //! finished braking event to the daemon, and reports the estimator's posterior.
 //!
+//! Persistence across restarts (issue 6 item 4): the clearance posterior the daemon reports is
+//! held by this adapter's own [`Estimator`] (the observer's public estimator type, same table
+//! and `[observer.estimator]` settings), fed with each used event's features exactly as the
+//! observer feeds its own, with the daemon's persisted odometer as the distance for the wear
+//! model. [`EventStage::save`] returns the estimator's evidence, one [`Evidence`] per used
+//! event, and [`EventStage::restore`] replays it into a fresh estimator, so an estimate keeps
+//! accumulating across daemon runs: two runs over logs A then B end with the same posterior as
+//! one run over A+B. (The observer's estimator exposes no way to set its posterior directly;
+//! replaying the evidence is exact.) At most [`MAX_EVIDENCE`] events are kept; past that the
+//! oldest are left out of the saved state, counted in [`Saved::evidence_dropped`] and named
+//! in the log line at the next start (their weight is already small after the wear model's
+//! diffusion over the distance since).
+//!
 //! What it is not: a detector, an estimator or an alert rule. Detection and the amplitude
 //! estimate (MODEL.md §11) are the observer's; the alerts the daemon raises are
 //! [`crate::alerts`]' (the observer's own alert state is not used here).
 
+use std::collections::VecDeque;
+
+use anyhow::Context;
+use serde::{Deserialize, Serialize};
+
 use super::config::Config;
 use super::pipeline::{Estimate, EventStage, EventSummary, Sample};
-use crate::events;
 use crate::observer::alerts::MAX_WINDOW;
+use crate::observer::estimator::Estimator;
 use crate::observer::table::ResponseTable;
 use crate::observer::{EventOut, Observer, ObserverConfig};
+
+/// Most used events whose evidence is kept for the posterior's restore.
+pub const MAX_EVIDENCE: usize = 2000;
+
+/// One used event as the estimator saw it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Evidence {
+    /// MODEL.md §11 band-passed steering-wheel RMS and peak (deg).
+    pub rms_deg: f64,
+    pub peak_deg: f64,
+    pub v0_kmh: f64,
+    pub decel_g: f64,
+    /// Daemon odometer when the event finished (m).
+    pub odometer_m: f64,
+}
+
+/// What [`ObserverStage`] saves in the daemon's state.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Saved {
+    pub evidence: Vec<Evidence>,
+    /// Used events older than the kept evidence (not replayed at restore).
+    pub evidence_dropped: u64,
+}
 
 /// [`EventStage`] over the real observer.
 pub struct ObserverStage {
@@ -21,6 +63,12 @@ pub struct ObserverStage {
     seen: u64,
     has_table: bool,
     clearance_mm: f64,
+    /// The posterior the daemon reports, with the table it predicts from.
+    est: Option<(Estimator, ResponseTable)>,
+    evidence: VecDeque<Evidence>,
+    evidence_dropped: u64,
+    odometer_km: f64,
+    cfg: ObserverConfig,
 }
 
 impl ObserverStage {
@@ -43,12 +91,26 @@ impl ObserverStage {
         // state (crate::alerts) applies the configured window in full.
         oc.alerts.shimmy_window = a.shimmy_window.min(MAX_WINDOW);
         oc.alerts.shimmy_confirm = a.shimmy_confirm.min(oc.alerts.shimmy_window);
+        oc.features = cfg.observer.features.clone();
+        oc.estimator = cfg.observer.estimator.clone();
         let has_table = table.is_some();
+        let est = match &table {
+            Some(t) => Some((
+                Estimator::new(t, oc.estimator.clone()).context("observer.estimator")?,
+                t.clone(),
+            )),
+            None => None,
+        };
         Ok(ObserverStage {
-            obs: Observer::new(oc, table)?,
+            obs: Observer::new(oc.clone(), table)?,
             seen: 0,
             has_table,
             clearance_mm: a.clearance_mm,
+            est,
+            evidence: VecDeque::new(),
+            evidence_dropped: 0,
+            odometer_km: 0.0,
+            cfg: oc,
         })
     }
 
@@ -59,7 +121,38 @@ impl ObserverStage {
         }
         // The observer finishes at most one event per pushed sample, so `last_event` is it.
         self.seen = n;
+        let e = self.obs.last_event()?;
+        if let (true, Some(rms), Some(peak)) = (e.used, e.rms_sw_bp_deg, e.peak_sw_bp_deg) {
+            let ev = Evidence {
+                rms_deg: rms,
+                peak_deg: peak,
+                v0_kmh: e.v0_kmh,
+                decel_g: e.decel_g,
+                odometer_m: self.odometer_km * 1000.0,
+            };
+            self.apply(&ev);
+        }
         self.obs.last_event().map(summary)
+    }
+
+    /// Adds one used event to the posterior and to the kept evidence.
+    fn apply(&mut self, ev: &Evidence) {
+        let Some((est, table)) = self.est.as_mut() else {
+            return;
+        };
+        est.update(
+            table,
+            ev.rms_deg,
+            ev.peak_deg,
+            ev.v0_kmh,
+            ev.decel_g,
+            ev.odometer_m,
+        );
+        if self.evidence.len() >= MAX_EVIDENCE {
+            self.evidence.pop_front();
+            self.evidence_dropped += 1;
+        }
+        self.evidence.push_back(*ev);
     }
 }
 
@@ -93,14 +186,7 @@ impl EventStage for ObserverStage {
     }
 
     fn push(&mut self, s: &Sample) -> Option<EventSummary> {
-        self.obs.push(&events::Sample {
-            t_ns: s.t_ns,
-            steer_rad: s.steer_rad,
-            speed_mps: s.speed_mps,
-            accel_mps2: s.accel_mps2,
-            brake: s.brake,
-            steer_invalid: s.steer_invalid,
-        });
+        self.obs.push(s);
         self.take_new()
     }
 
@@ -109,8 +195,63 @@ impl EventStage for ObserverStage {
         self.take_new()
     }
 
+    fn odometer_km(&mut self, km: f64) {
+        self.odometer_km = km;
+    }
+
+    fn save(&self) -> Option<serde_json::Value> {
+        self.est.as_ref()?;
+        serde_json::to_value(Saved {
+            evidence: self.evidence.iter().copied().collect(),
+            evidence_dropped: self.evidence_dropped,
+        })
+        .ok()
+    }
+
+    fn restore(&mut self, saved: &serde_json::Value) -> anyhow::Result<Option<String>> {
+        let Some((_, table)) = self.est.as_ref() else {
+            return Ok(Some(
+                "the saved clearance posterior is not restored: no response table (vehicle.table)"
+                    .into(),
+            ));
+        };
+        let saved: Saved = serde_json::from_value(saved.clone())
+            .context("the state's saved posterior does not parse")?;
+        let fresh = Estimator::new(table, self.cfg.estimator.clone())?;
+        self.est.as_mut().expect("checked").0 = fresh;
+        self.evidence.clear();
+        self.evidence_dropped = saved.evidence_dropped;
+        for ev in &saved.evidence {
+            if [
+                ev.rms_deg,
+                ev.peak_deg,
+                ev.v0_kmh,
+                ev.decel_g,
+                ev.odometer_m,
+            ]
+            .iter()
+            .all(|x| x.is_finite())
+            {
+                self.apply(ev);
+            } else {
+                self.evidence_dropped += 1;
+            }
+        }
+        let mut msg = format!(
+            "clearance posterior restored from {} used event(s)",
+            self.evidence.len()
+        );
+        if self.evidence_dropped > 0 {
+            msg += &format!(
+                " ({} older used event(s) not kept in the state and not replayed)",
+                self.evidence_dropped
+            );
+        }
+        Ok(Some(msg))
+    }
+
     fn estimate(&self) -> Option<Estimate> {
-        let est = self.obs.estimator()?;
+        let (est, _) = self.est.as_ref()?;
         let s = est.summary();
         let used = s.events_used > 0;
         Some(Estimate {

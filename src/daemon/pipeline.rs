@@ -11,20 +11,9 @@
 
 use serde::{Deserialize, Serialize};
 
-/// One mapped update, SI units. Fields are `Some` only when freshly received with this update.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Sample {
-    pub t_ns: i64,
-    /// Steering-wheel angle δ_sw (rad), MODEL.md §8.
-    pub steer_rad: Option<f64>,
-    pub speed_mps: Option<f64>,
-    /// Longitudinal acceleration (m/s², braking negative).
-    pub accel_mps2: Option<f64>,
-    /// Brake applied now, if known.
-    pub brake: Option<bool>,
-    /// A steering frame was rejected or timed out with this update.
-    pub steer_invalid: bool,
-}
+/// One mapped update, SI units: the detector's own input type ([`crate::events::Sample`]),
+/// re-exported so the daemon, the observer and the event detector share one definition.
+pub use crate::events::Sample;
 
 /// One finished braking event as the journal, the alerts and the report see it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -72,6 +61,19 @@ pub trait EventStage {
     fn finish(&mut self) -> Option<EventSummary>;
     /// The current clearance estimate (None when the stage cannot estimate).
     fn estimate(&self) -> Option<Estimate>;
+    /// The odometer now (km), told before each [`Self::push`]: the distance between events
+    /// drives the estimator's wear model across restarts. Default: ignored.
+    fn odometer_km(&mut self, _km: f64) {}
+    /// What the stage needs to resume after a restart (the posterior's evidence), saved in the
+    /// daemon's state file. Default: nothing.
+    fn save(&self) -> Option<serde_json::Value> {
+        None
+    }
+    /// Resumes from what [`Self::save`] returned in an earlier run; returns a line for the log.
+    /// Default: nothing to restore.
+    fn restore(&mut self, _saved: &serde_json::Value) -> anyhow::Result<Option<String>> {
+        Ok(None)
+    }
 }
 
 /// No observer configured or built: nothing is detected, nothing is estimated.

@@ -50,6 +50,9 @@ pub struct Options {
 /// Builds the event stage for a configuration (the observer adapter, or [`super::pipeline::NoObserver`]).
 pub type StageFactory = dyn Fn(&Config) -> anyhow::Result<Box<dyn EventStage>>;
 
+/// Recorded-timing replay: once a frame is due, every frame due within this much after it is
+/// handed over at once (at most this early), so the loop sleeps about once per slice.
+const PACE_SLICE: Duration = Duration::from_millis(10);
 /// Brake pressure above which the brake counts as applied when only pressure is mapped (Pa).
 const BRAKE_ON_PA: f64 = 3.0e5;
 /// Steering history kept for event traces (s) and its fixed capacity (samples).
@@ -78,6 +81,8 @@ enum Input {
         fast: bool,
         /// (first frame time, wall clock at it) for recorded-timing replay.
         anchor: Option<(i64, Instant)>,
+        /// Frames due up to this offset from the anchor are released without a clock read.
+        released: Duration,
     },
     Live {
         rx: mpsc::Receiver<Frame>,
@@ -115,6 +120,7 @@ impl Input {
                 done,
                 fast,
                 anchor,
+                released,
             } => loop {
                 if cur.is_none() {
                     let Some(p) = logs.pop_front() else {
@@ -134,12 +140,19 @@ impl Input {
                         if !*fast {
                             let (t0, w0) = *anchor.get_or_insert((f.t_ns, Instant::now()));
                             let due = Duration::from_nanos((f.t_ns - t0).max(0) as u64);
-                            // Sleep in short steps so signals are seen promptly.
-                            while w0.elapsed() < due && !stop.load(Ordering::Relaxed) {
-                                std::thread::sleep(
-                                    due.saturating_sub(w0.elapsed())
-                                        .min(Duration::from_millis(50)),
-                                );
+                            // Batch pacing: frames due before `released` (the clock at the last
+                            // look plus PACE_SLICE) are handed over at once, without reading
+                            // the clock; at bus rate the loop looks at the clock and sleeps
+                            // once per slice, not once per frame (a sleep per frame cost more
+                            // CPU than the processing). Sleep in short steps so signals are
+                            // seen promptly.
+                            while due > *released && !stop.load(Ordering::Relaxed) {
+                                let now = w0.elapsed();
+                                if due > now {
+                                    std::thread::sleep((due - now).min(Duration::from_millis(50)));
+                                } else {
+                                    *released = now + PACE_SLICE;
+                                }
                             }
                         }
                         return Ok(Feed::Frame(f));
@@ -158,9 +171,37 @@ impl Input {
         }
     }
 
+    /// Tells the reader threads to stop; they finish the read in progress and exit.
     fn stop(&mut self) {
-        if let Input::Live { stops, threads, .. } = self {
+        if let Input::Live { stops, .. } = self {
             stops.iter().for_each(|s| s.store(true, Ordering::Relaxed));
+        }
+    }
+
+    /// After [`Input::stop`]: the next frame the reader threads had read from the kernel but
+    /// the daemon had not yet processed, so a stop loses none of them; `None` once every
+    /// reader has exited and the queue is empty. (Readers blocked on a full queue are
+    /// unblocked by this draining.)
+    fn queued(&mut self) -> Option<Frame> {
+        match self {
+            Input::Live { rx, threads, .. } => loop {
+                match rx.recv_timeout(Duration::from_millis(50)) {
+                    Ok(f) => return Some(f),
+                    Err(mpsc::RecvTimeoutError::Disconnected) => return None,
+                    Err(mpsc::RecvTimeoutError::Timeout) => {
+                        if threads.iter().all(|t| t.is_finished()) {
+                            return rx.try_recv().ok();
+                        }
+                    }
+                }
+            },
+            Input::Replay { .. } => None,
+        }
+    }
+
+    /// Waits for the reader threads after [`Input::stop`] and the drain.
+    fn join(&mut self) {
+        if let Input::Live { threads, .. } = self {
             for t in threads.drain(..) {
                 let _ = t.join();
             }
@@ -275,6 +316,7 @@ struct Daemon {
     history: SteerHistory,
     last_speed: Option<(i64, f64)>,
     events: u64,
+    mqtt: Option<super::mqtt::Publisher>,
 }
 
 impl Daemon {
@@ -351,11 +393,7 @@ impl Daemon {
             .alerts
             .on_event(&self.cfg.alerts, &e, est.as_ref());
         for t in &transitions {
-            let (what, a) = match t {
-                Transition::Raised(a) => ("raised", a),
-                Transition::Updated(a) => ("updated", a),
-                Transition::Cleared(a) => ("cleared", a),
-            };
+            let (what, a) = t.parts();
             log(format_args!(
                 "alert {what}: #{} {}: {}",
                 a.id,
@@ -374,11 +412,40 @@ impl Daemon {
                 .map_or("n/a".to_string(), |a| format!("{a:.3} deg")),
             if e.used { "used" } else { "not used" }
         ));
+        self.publish_event(&e, est.as_ref(), &transitions)?;
         self.state.estimate = est;
         self.state.push_event(e);
         self.journal.sync()?;
+        self.save_state()
+    }
+
+    fn save_state(&mut self) -> anyhow::Result<()> {
         self.state.journal_seq = self.journal.durable_seq();
-        state::save(&self.state_dir, &self.state)?;
+        self.state.stage = self.stage.save();
+        self.state.last_speed = self.last_speed;
+        state::save(&self.state_dir, &self.state)
+    }
+
+    /// Queues the event summary and the alert transitions for MQTT, when configured.
+    fn publish_event(
+        &self,
+        e: &EventSummary,
+        est: Option<&super::pipeline::Estimate>,
+        transitions: &[Transition],
+    ) -> anyhow::Result<()> {
+        let Some(m) = &self.mqtt else {
+            return Ok(());
+        };
+        m.publish("event", json!({ "event": e, "estimate": est }))
+            .context("mqtt outbox")?;
+        for t in transitions {
+            let (what, a) = t.parts();
+            m.publish(
+                "alert",
+                json!({ "transition": what, "alert": a, "odometer_km": e.odometer_km }),
+            )
+            .context("mqtt outbox")?;
+        }
         Ok(())
     }
 
@@ -392,8 +459,10 @@ impl Daemon {
                     || new.events != self.cfg.events
                     || new.outputs != self.cfg.outputs
                     || new.vehicle != self.cfg.vehicle
+                    || new.observer != self.cfg.observer
+                    || new.mqtt != self.cfg.mqtt
                 {
-                    log("SIGHUP: [input], [vehicle], [events] or [outputs] changed: these take effect after a restart");
+                    log("SIGHUP: [input], [vehicle], [events], [outputs], [observer] or [mqtt] changed: these take effect after a restart");
                 }
                 self.cfg.alerts = new.alerts;
                 self.cfg.log = new.log;
@@ -480,8 +549,20 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
     signal_hook::flag::register(signal_hook::consts::SIGHUP, hup.clone())
         .context("cannot install SIGHUP handler")?;
 
-    let stage = make_stage(&cfg)?;
+    let mut stage = make_stage(&cfg)?;
     log(format_args!("event stage: {}", stage.describe()));
+    if let Some(saved) = &st.stage {
+        match stage.restore(saved) {
+            Ok(Some(msg)) => log(msg),
+            Ok(None) => {}
+            // A posterior that cannot be restored is reported, and estimation starts afresh;
+            // the journal still holds every event.
+            Err(e) => log(format_args!(
+                "state: {e:#}; the clearance estimate starts afresh"
+            )),
+        }
+    }
+    let last_speed = st.last_speed;
 
     let mut input = if live {
         open_live(&cfg.input.interfaces, mapper.needed_ids())?
@@ -492,9 +573,41 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
             done: SourceStats::default(),
             fast: opts.fast || cfg.input.fast,
             anchor: None,
+            released: Duration::ZERO,
         }
     };
     let mut sink = open_sink(&cfg, &db, live)?;
+    let mqtt = if cfg.mqtt.enabled {
+        let dir = cfg
+            .mqtt
+            .queue_dir
+            .clone()
+            .unwrap_or_else(|| state_dir.join("mqtt-outbox"));
+        let (p, opened) = super::mqtt::Publisher::start(&cfg.mqtt, &dir)?;
+        if let Some(problem) = &opened.problem {
+            log(format_args!("mqtt: {problem}"));
+        }
+        log(format_args!(
+            "mqtt: publishing to {}:{} as {} (QoS {}), outbox {} with {} message(s) queued from before{}",
+            cfg.mqtt.host,
+            cfg.mqtt.port,
+            cfg.mqtt.client_id,
+            cfg.mqtt.qos,
+            dir.display(),
+            opened.pending,
+            if opened.truncated_bytes > 0 || opened.invalid_lines > 0 {
+                format!(
+                    " (recovery: cut a torn tail of {} bytes, skipped {} invalid line(s))",
+                    opened.truncated_bytes, opened.invalid_lines
+                )
+            } else {
+                String::new()
+            }
+        ));
+        Some(p)
+    } else {
+        None
+    };
 
     let mut d = Daemon {
         cfg,
@@ -508,8 +621,9 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
         history: SteerHistory {
             buf: VecDeque::with_capacity(TRACE_CAP),
         },
-        last_speed: None,
+        last_speed,
         events: 0,
+        mqtt,
     };
     d.journal.append(&json!({
         "type": "start",
@@ -551,12 +665,8 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
             Feed::End => break Ok(()),
             Feed::Idle => {}
             Feed::Frame(f) => {
-                if let Some(s) = d.sample(&f) {
-                    if let Some(e) = d.stage.push(&s) {
-                        if let Err(e) = d.on_event(e) {
-                            break Err(e);
-                        }
-                    }
+                if let Err(e) = process_frame(&mut d, &f) {
+                    break Err(e);
                 }
             }
         }
@@ -593,11 +703,29 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
     };
     input.stop();
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
+    // Frames the reader threads queued before they stopped are still processed (SIGTERM
+    // loses no frame that was read from the bus).
+    // After an error they are drained unprocessed (the readers must not block on the queue).
+    let mut drain_err = None;
+    while let Some(f) = input.queued() {
+        if result.is_ok() && drain_err.is_none() {
+            drain_err = process_frame(&mut d, &f).err();
+        }
+    }
+    input.join();
+    if let Some(e) = drain_err {
+        return Err(e);
+    }
     // Close an event still open (end of replay or SIGTERM mid-braking) so it is not lost.
+    d.stage.odometer_km(d.state.odometer_km);
     if let Some(e) = d.stage.finish() {
         d.on_event(e)?;
     }
     let totals = Counters::from_stats(&input.stats(), &d.mapper.stats(), d.events);
+    let mqtt = d
+        .mqtt
+        .take()
+        .map(|m| m.shutdown(Duration::from_secs_f64(d.cfg.mqtt.drain_timeout_s)));
     d.journal.append(&json!({
         "type": "stop",
         "reason": if result.is_ok() { "end" } else { "error" },
@@ -605,10 +733,10 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
         "messages": d.mapper.stats(),
         "odometer_km": d.state.odometer_km,
         "estimate": &d.state.estimate,
+        "mqtt": mqtt,
     }))?;
     d.journal.sync()?;
-    d.state.journal_seq = d.journal.durable_seq();
-    state::save(&d.state_dir, &d.state)?;
+    d.save_state()?;
     log(format_args!("stopped: {totals}"));
     result
 }
@@ -617,6 +745,17 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
 type Sink = (super::transmit::Encoder, crate::source::socketcan::LiveSink);
 #[cfg(not(target_os = "linux"))]
 type Sink = (super::transmit::Encoder, ());
+
+/// One frame through the pipeline: signals → braking events → observer → journal/alerts.
+fn process_frame(d: &mut Daemon, f: &Frame) -> anyhow::Result<()> {
+    if let Some(s) = d.sample(f) {
+        d.stage.odometer_km(d.state.odometer_km);
+        if let Some(e) = d.stage.push(&s) {
+            d.on_event(e)?;
+        }
+    }
+    Ok(())
+}
 
 fn open_sink(cfg: &Config, db: &Database, live: bool) -> anyhow::Result<Option<Sink>> {
     if !cfg.outputs.transmit {

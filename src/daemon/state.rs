@@ -33,6 +33,12 @@ pub struct State {
     pub alerts: AlertBook,
     /// Last journal sequence number covered by this state.
     pub journal_seq: Option<u64>,
+    /// The event stage's own state (the clearance posterior's evidence), see
+    /// [`super::pipeline::EventStage::save`].
+    pub stage: Option<serde_json::Value>,
+    /// Last speed sample (log time ns, m/s), so the odometer integration continues across a
+    /// restart when the input continues within a second (a log split in two).
+    pub last_speed: Option<(i64, f64)>,
 }
 
 impl State {

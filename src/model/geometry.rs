@@ -89,10 +89,34 @@ impl Trapezoid {
         xd: f64,
         th4d: f64,
     ) -> Points {
+        self.points_sc(
+            th1.sin_cos(),
+            th2.sin_cos(),
+            th4.sin_cos(),
+            x,
+            th1d,
+            th2d,
+            xd,
+            th4d,
+        )
+    }
+
+    /// [`Self::points`] from the sines and cosines (sin, cos) of θ1, θ2, θ4 (computed once per
+    /// state and shared with the tire terms, or shifted across integrator stages).
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    pub fn points_sc(
+        &self,
+        (s1, c1): (f64, f64),
+        (s2, c2): (f64, f64),
+        (s4, c4): (f64, f64),
+        x: f64,
+        th1d: f64,
+        th2d: f64,
+        xd: f64,
+        th4d: f64,
+    ) -> Points {
         // cos(θ1 − α), sin(θ1 − α) and cos(θ2 + α), sin(θ2 + α) by angle addition.
-        let (s1, c1) = th1.sin_cos();
-        let (s2, c2) = th2.sin_cos();
-        let (s4, c4) = th4.sin_cos();
         let cl = c1 * self.cos_a + s1 * self.sin_a; // cos(θ1 − α)
         let sl = s1 * self.cos_a - c1 * self.sin_a; // sin(θ1 − α)
         let cr = c2 * self.cos_a - s2 * self.sin_a; // cos(θ2 + α)

@@ -1,5 +1,6 @@
 //! The 5-DOF brake-induced shimmy model of MODEL.md: two Lankarani–Nikravesh clearance joints,
-//! Magic Formula tires with relaxation, braking load transfer, and a fixed-step RK4 integrator.
+//! Magic Formula tires with relaxation, braking load transfer, and a fixed-step RK4 integrator
+//! (plus faster multirate/adaptive variants, docs/BENCHMARKS.md "Shimmy model").
 //!
 //! One file per concern of MODEL.md: [`params`] §9, [`geometry`] §2, [`joint`] §4, [`tire`] §5,
 //! [`braking`] §6, [`excitation`] §7, [`sensor`] §8, [`rhs`] §3 (+§15), [`integrate`] §10,

@@ -10,7 +10,7 @@ use super::braking::{front_wheel_force, pitch_accel, Demand};
 use super::geometry::{cross, Trapezoid};
 use super::joint::{hertz_k, ClearanceJoint, IdealJoint, JointForce};
 use super::params::VehicleParams;
-use super::tire::PureSlip;
+use super::tire::{MfTables, PureSlip};
 
 /// Number of states: the 16 of MODEL.md §1 plus the two of the §15 column option (held at zero
 /// when the option is off).
@@ -88,6 +88,10 @@ pub struct StepCtx {
     /// Warm-start the braking-slip Newton iteration and stop at convergence (faster
     /// integrator); false is MODEL.md §5.3's 8 cold Newton steps.
     pub warm_slip: bool,
+    /// Evaluate the Magic Formula through these tables (relative error < 1e-8, see
+    /// [`MfTables`]) instead of libm; implies the warm-started slip inversion. None is
+    /// MODEL.md §5.3 as written.
+    pub mf_table: Option<&'static MfTables>,
 }
 
 /// Forces and other by-products of one right-hand-side evaluation.
@@ -106,6 +110,123 @@ pub struct Aux {
     pub a_dem: f64,
     /// Column torque T_c (§15; 0 when the option is off).
     pub column_torque: f64,
+}
+
+/// Sines and cosines (sin, cos) of the angles of one state: θ1, θ2 (geometry §2 and the tire
+/// terms of §3/§5.4), θ4 (§2) and the unbalance angles φ_w + φ_L, φ_w + φ_R (§7). Computed
+/// once per state and shared, or shifted from a nearby state by angle addition.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Trig {
+    pub th: [(f64, f64); 2],
+    pub th4: (f64, f64),
+    pub ph: [(f64, f64); 2],
+}
+
+/// sin and cos of a small angle increment d (|d| ≤ 0.05) by their Taylor series through d⁷
+/// and d⁸: truncation below 6e-18, i.e. exact to f64 rounding.
+#[inline(always)]
+fn small_sin_cos(d: f64) -> (f64, f64) {
+    let d2 = d * d;
+    let s = d * (1.0 - d2 * (1.0 / 6.0) * (1.0 - d2 * (1.0 / 20.0) * (1.0 - d2 * (1.0 / 42.0))));
+    let c = 1.0
+        - d2 * 0.5
+            * (1.0 - d2 * (1.0 / 12.0) * (1.0 - d2 * (1.0 / 30.0) * (1.0 - d2 * (1.0 / 56.0))));
+    (s, c)
+}
+
+/// (sin, cos) of a + d from (sin a, cos a): angle addition with [`small_sin_cos`] when
+/// |d| ≤ 0.05, libm otherwise.
+#[inline(always)]
+fn shift_sc((s, c): (f64, f64), a: f64, d: f64) -> (f64, f64) {
+    if d.abs() <= 0.05 {
+        let (sd, cd) = small_sin_cos(d);
+        (s * cd + c * sd, c * cd - s * sd)
+    } else {
+        (a + d).sin_cos()
+    }
+}
+
+impl Trig {
+    /// All sines and cosines of `y` from libm.
+    #[inline(always)]
+    pub fn exact(m: &Model, y: &State) -> Self {
+        Self {
+            th: [y[ix::TH1].sin_cos(), y[ix::TH2].sin_cos()],
+            th4: y[ix::TH4].sin_cos(),
+            ph: [
+                (y[ix::PHI] + m.phases[0]).sin_cos(),
+                (y[ix::PHI] + m.phases[1]).sin_cos(),
+            ],
+        }
+    }
+
+    /// The sines and cosines of `y`, given `self` = those of a nearby state `y0` (an
+    /// integrator stage): angle addition with the increments, exact to rounding (see
+    /// [`small_sin_cos`]), and no libm call while the increments stay below 0.05 rad.
+    #[inline(always)]
+    pub fn shifted(&self, m: &Model, y0: &State, y: &State) -> Self {
+        use ix::*;
+        let dphi = y[PHI] - y0[PHI];
+        Self {
+            th: [
+                shift_sc(self.th[0], y0[TH1], y[TH1] - y0[TH1]),
+                shift_sc(self.th[1], y0[TH2], y[TH2] - y0[TH2]),
+            ],
+            th4: shift_sc(self.th4, y0[TH4], y[TH4] - y0[TH4]),
+            ph: [
+                shift_sc(self.ph[0], y0[PHI] + m.phases[0], dphi),
+                shift_sc(self.ph[1], y0[PHI] + m.phases[1], dphi),
+            ],
+        }
+    }
+}
+
+/// Tire outputs of both wheels at one state (MODEL.md §5): what a multirate integrator
+/// evaluates once per step and extrapolates over the stages.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct TireOut {
+    /// F_x (braking > 0), F_y, M_z.
+    pub fx: [f64; 2],
+    pub fy: [f64; 2],
+    pub mz: [f64; 2],
+    /// Relaxation length σ = C_Fα(F_z)/k_ty (§5.2).
+    pub sigma: [f64; 2],
+    /// Braking slip κ (§5.3).
+    pub kappa: [f64; 2],
+}
+
+impl TireOut {
+    /// Σ w_j·f_j (Lagrange extrapolation through earlier values; κ from the first).
+    #[inline(always)]
+    pub fn combine(f: &[TireOut; 3], w: [f64; 3]) -> TireOut {
+        let c = |g: fn(&TireOut) -> [f64; 2]| {
+            let (a, b, d) = (g(&f[0]), g(&f[1]), g(&f[2]));
+            [
+                w[0] * a[0] + w[1] * b[0] + w[2] * d[0],
+                w[0] * a[1] + w[1] * b[1] + w[2] * d[1],
+            ]
+        };
+        TireOut {
+            fx: c(|t| t.fx),
+            fy: c(|t| t.fy),
+            mz: c(|t| t.mz),
+            sigma: c(|t| t.sigma),
+            kappa: f[0].kappa,
+        }
+    }
+
+    /// `self + c·(self − prev)`: linear extrapolation by `c` steps from two step-start values.
+    #[inline(always)]
+    pub fn extrapolate(&self, prev: &TireOut, c: f64) -> TireOut {
+        let f = |a: [f64; 2], b: [f64; 2]| [a[0] + c * (a[0] - b[0]), a[1] + c * (a[1] - b[1])];
+        TireOut {
+            fx: f(self.fx, prev.fx),
+            fy: f(self.fy, prev.fy),
+            mz: f(self.mz, prev.mz),
+            sigma: f(self.sigma, prev.sigma),
+            kappa: self.kappa,
+        }
+    }
 }
 
 /// One clearance joint of radial clearance `clearance_m` with the §9 joint constants.
@@ -276,12 +397,28 @@ impl Model {
         }
     }
 
+    /// Whether joint `i` (0 = L, 1 = R) is a clearance joint in this variant (§4).
+    #[inline(always)]
+    pub fn has_clearance(&self, i: usize) -> bool {
+        match self.mode {
+            JointMode::Dual => true,
+            JointMode::Single => i == 0,
+            JointMode::Ideal => false,
+        }
+    }
+
     /// Joint forces at one state (§4).
     #[inline(always)]
     pub fn joints(&self, y: &State, ctx: &StepCtx) -> [JointForce; 2] {
+        self.joints_trig(y, &Trig::exact(self, y), ctx)
+    }
+
+    /// [`Self::joints`] with the sines and cosines of `y` given.
+    #[inline(always)]
+    pub fn joints_trig(&self, y: &State, tr: &Trig, ctx: &StepCtx) -> [JointForce; 2] {
         use ix::*;
-        let pts = self.geo.points(
-            y[TH1], y[TH2], y[X], y[TH4], y[TH1D], y[TH2D], y[XD], y[TH4D],
+        let pts = self.geo.points_sc(
+            tr.th[0], tr.th[1], tr.th4, y[X], y[TH1D], y[TH2D], y[XD], y[TH4D],
         );
         let rates = [y[TH1D], y[TH2D]];
         let mut out = [JointForce::default(); 2];
@@ -321,9 +458,14 @@ impl Model {
     /// Penetration δ and rate δ' of the clearance joints (for the step-boundary flags, §10).
     /// Ideal joints report (−∞, 0).
     pub fn penetrations(&self, y: &State) -> [(f64, f64); 2] {
+        self.penetrations_trig(y, &Trig::exact(self, y))
+    }
+
+    /// [`Self::penetrations`] with the sines and cosines of `y` given.
+    pub fn penetrations_trig(&self, y: &State, tr: &Trig) -> [(f64, f64); 2] {
         use ix::*;
-        let pts = self.geo.points(
-            y[TH1], y[TH2], y[X], y[TH4], y[TH1D], y[TH2D], y[XD], y[TH4D],
+        let pts = self.geo.points_sc(
+            tr.th[0], tr.th[1], tr.th4, y[X], y[TH1D], y[TH2D], y[XD], y[TH4D],
         );
         let mut out = [(f64::NEG_INFINITY, 0.0); 2];
         for (i, o) in out.iter_mut().enumerate() {
@@ -342,6 +484,94 @@ impl Model {
     /// ẏ = f(t, y) (MODEL.md §3–§7, §15), writing the by-products into `aux`.
     #[inline(always)]
     pub fn eval(&self, t: f64, y: &State, ctx: &StepCtx, dy: &mut State, aux: &mut Aux) {
+        self.eval_with(t, y, ctx, &Trig::exact(self, y), None, dy, aux);
+    }
+
+    /// Vertical load F_z of wheel `i` (§5.1: static share, braking transfer through the
+    /// filtered deceleration, roll, unbalance), floored at `fz_floor`.
+    #[inline(always)]
+    fn wheel_load(&self, i: usize, y: &State, s_ph: f64, u_om2: f64) -> f64 {
+        let side = if i == 0 { -1.0 } else { 1.0 };
+        let dfz_half = 0.5 * self.load_transfer_per_mps2 * y[ix::AF];
+        (self.fz0 + dfz_half + side * self.k_tz_half_track * y[ix::TH3] + u_om2 * s_ph)
+            .max(self.fz_floor)
+    }
+
+    /// Tire forces of one wheel (§5.3) at load `fz`, transient slip `alpha_t` and
+    /// longitudinal force demand `f_long`: (F_x, F_y, M_z, σ, κ). With `warm`, the slip
+    /// Newton iteration starts from `kappa_guess` and stops at convergence; otherwise it is
+    /// MODEL.md's 8 cold steps.
+    #[inline(always)]
+    fn tire_forces(
+        &self,
+        fz: f64,
+        alpha_t: f64,
+        f_long: f64,
+        kappa_guess: f64,
+        warm: bool,
+        table: Option<&MfTables>,
+    ) -> (f64, f64, f64, f64, f64) {
+        if let Some(tab) = table {
+            let tire = PureSlip::at_load_tab(fz, self.mu, tab);
+            let kappa = tire.invert_fx_tab(f_long, kappa_guess, 1e-10, tab);
+            let (fx, fy, mz) = tire.combined_tab(kappa, alpha_t, tab);
+            let sigma = tire.cornering_stiffness() / self.k_ty;
+            return (fx, fy, mz, sigma, kappa);
+        }
+        let tire = PureSlip::at_load(fz, self.mu);
+        let kappa = if warm {
+            tire.invert_fx(f_long, Some(kappa_guess), 8, 1e-10)
+        } else {
+            tire.invert_fx(f_long, None, 8, 0.0)
+        };
+        let (fx, fy, mz) = tire.combined(kappa, alpha_t);
+        let sigma = tire.cornering_stiffness() / self.k_ty;
+        (fx, fy, mz, sigma, kappa)
+    }
+
+    /// The exact tire outputs of both wheels at (t, y) (warm-started slip inversion from
+    /// `ctx.kappa_guess`), for integrators that hold them over a step.
+    #[inline(always)]
+    pub fn tires(&self, t: f64, y: &State, tr: &Trig, ctx: &StepCtx) -> TireOut {
+        let v = y[ix::V];
+        let omega = v / self.r_w;
+        let a_dem = ctx.demand.a_dem(t, v, self.v_stop);
+        let f_long = front_wheel_force(a_dem, self.mass, self.front_share);
+        let u_om2 = self.unbalance * omega * omega;
+        let mut out = TireOut::default();
+        for i in 0..2 {
+            let fz = self.wheel_load(i, y, tr.ph[i].0, u_om2);
+            let (fx, fy, mz, sigma, kappa) = self.tire_forces(
+                fz,
+                y[ix::AL + i],
+                f_long,
+                ctx.kappa_guess[i],
+                true,
+                ctx.mf_table,
+            );
+            out.fx[i] = fx;
+            out.fy[i] = fy;
+            out.mz[i] = mz;
+            out.sigma[i] = sigma;
+            out.kappa[i] = kappa;
+        }
+        out
+    }
+
+    /// [`Self::eval`] with the sines and cosines of `y` given, and optionally the tire outputs
+    /// given (`held`, e.g. extrapolated over the stages of a step) instead of evaluated here.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    pub fn eval_with(
+        &self,
+        t: f64,
+        y: &State,
+        ctx: &StepCtx,
+        tr: &Trig,
+        held: Option<&TireOut>,
+        dy: &mut State,
+        aux: &mut Aux,
+    ) {
         use ix::*;
         let v = y[V];
         let omega = v / self.r_w; // Ω = v/R_w (§1)
@@ -357,7 +587,7 @@ impl Model {
         dy[AFD] = pitch_accel(a_dem, y[AF], y[AFD], self.omega_p, self.zeta_p);
 
         // §4: joint forces and moments.
-        let jf = self.joints(y, ctx);
+        let jf = self.joints_trig(y, tr, ctx);
         aux.joint = jf;
         let g = self.geo.centre(y[X]);
         let mut m_joint = [0.0; 2];
@@ -372,27 +602,29 @@ impl Model {
         // §5, §7: tire and excitation moments about the kingpins, lateral forces for the roll.
         let u_om2 = self.unbalance * omega * omega;
         let f_long = front_wheel_force(a_dem, self.mass, self.front_share);
-        let dfz_half = 0.5 * self.load_transfer_per_mps2 * y[AF];
         let noise_scale = v / self.noise_ref_speed;
         let mut m_tire = [0.0; 2];
         let mut f_lat_sum = 0.0;
         for i in 0..2 {
             let side = if i == 0 { -1.0 } else { 1.0 }; // ∓ in §5.1, ± in §5.4
-            let (s_ph, c_ph) = (y[PHI] + self.phases[i]).sin_cos();
-            let fz = (self.fz0 + dfz_half + side * self.k_tz_half_track * y[TH3] + u_om2 * s_ph)
-                .max(self.fz_floor);
+            let (s_ph, c_ph) = tr.ph[i];
+            let fz = self.wheel_load(i, y, s_ph, u_om2);
             aux.fz[i] = fz;
-            let (sin_t, cos_t) = th[i].sin_cos();
+            let (sin_t, cos_t) = tr.th[i];
             let alpha_t = y[AL + i];
             let mut m = side * self.spindle * u_om2 * c_ph + ctx.noise[i] * noise_scale;
             if self.sw.tires {
-                let tire = PureSlip::at_load(fz, self.mu);
-                let kappa = if ctx.warm_slip {
-                    tire.invert_fx(f_long, Some(ctx.kappa_guess[i]), 8, 1e-10)
-                } else {
-                    tire.invert_fx(f_long, None, 8, 0.0)
+                let (fx, fy, mz, sigma, kappa) = match held {
+                    Some(h) => (h.fx[i], h.fy[i], h.mz[i], h.sigma[i], h.kappa[i]),
+                    None => self.tire_forces(
+                        fz,
+                        alpha_t,
+                        f_long,
+                        ctx.kappa_guess[i],
+                        ctx.warm_slip,
+                        ctx.mf_table,
+                    ),
                 };
-                let (fx, fy, mz) = tire.combined(kappa, alpha_t);
                 aux.kappa[i] = kappa;
                 aux.fx[i] = fx;
                 aux.fy[i] = fy;
@@ -402,7 +634,6 @@ impl Model {
                 // §3: F_lat = −F_y cos θ + F_x sin θ.
                 f_lat_sum += -fy * cos_t + fx * sin_t;
                 // §5.2: σ α' = V_sy − |v| α, σ = C_Fα(F_z)/k_ty.
-                let sigma = tire.cornering_stiffness() / self.k_ty;
                 let v_sy = v * sin_t + (self.trail * thd[i] - self.r_w * y[TH3D]) * cos_t;
                 dy[AL + i] = (v_sy - v.abs() * alpha_t) / sigma;
             } else {
@@ -443,5 +674,54 @@ impl Model {
         // Eq. (5).
         dy[TH4] = y[TH4D];
         dy[TH4D] = (-self.c_th4 * y[TH4D] + m_rod) / self.i_t;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shifted_sines_and_cosines_equal_libm_to_rounding() {
+        let p = VehicleParams::default();
+        let m = Model::new(
+            &p,
+            1e-4,
+            JointMode::Dual,
+            Switches::default(),
+            2e-3,
+            [0.3, 5.9],
+        );
+        let mut y0 = [0.0; N];
+        let mut worst: f64 = 0.0;
+        for k in 0..2000 {
+            let a = k as f64 * 0.0137;
+            y0[ix::TH1] = 0.3 * a.sin();
+            y0[ix::TH2] = -0.2 * a.cos();
+            y0[ix::TH4] = 0.01 * (3.0 * a).sin();
+            y0[ix::PHI] = a;
+            // Increments across the 0.05 rad switch to libm and beyond.
+            let d = 0.08 * ((k % 17) as f64 / 16.0 - 0.5) * (1.0 + (k % 3) as f64);
+            let mut y = y0;
+            y[ix::TH1] += d;
+            y[ix::TH2] -= 0.5 * d;
+            y[ix::TH4] += 0.1 * d;
+            y[ix::PHI] += d;
+            let t0 = Trig::exact(&m, &y0);
+            let got = t0.shifted(&m, &y0, &y);
+            let want = Trig::exact(&m, &y);
+            let pairs = [
+                (got.th[0], want.th[0]),
+                (got.th[1], want.th[1]),
+                (got.th4, want.th4),
+                (got.ph[0], want.ph[0]),
+                (got.ph[1], want.ph[1]),
+            ];
+            for (g, w) in pairs {
+                worst = worst.max((g.0 - w.0).abs()).max((g.1 - w.1).abs());
+            }
+        }
+        // φ reaches 27 rad here: its own rounding (ulp 3.6e-15) bounds the agreement.
+        assert!(worst < 1e-14, "largest deviation {worst:e}");
     }
 }

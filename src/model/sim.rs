@@ -7,9 +7,9 @@
 
 use super::braking::Demand;
 use super::excitation::Excitation;
-use super::integrate::rk4_step;
+use super::integrate::{rk4_step, rk4_step_shared, StageTires};
 use super::params::VehicleParams;
-use super::rhs::{ix, Aux, JointMode, Model, State, StepCtx, Switches, N};
+use super::rhs::{ix, Aux, JointMode, Model, State, StepCtx, Switches, TireOut, Trig, N};
 use serde::{Deserialize, Serialize};
 
 /// One simulation case. `Default` is MODEL.md's reference case: dual clearance 0.1 mm,
@@ -61,7 +61,60 @@ pub enum Integrator {
     /// RK4 with the braking-slip Newton iteration warm-started from the previous stage and
     /// stopped at convergence (same solution to 1e-10 % slip, fewer transcendental calls).
     Rk4WarmSlip,
+    /// RK4 on the same grid h, multirate: the tire outputs (§5: F_x, F_y, M_z, σ, κ) are
+    /// evaluated exactly once per step, at its start, and extrapolated linearly in time over
+    /// the stages through the previous step's values; the sines and cosines of the stage
+    /// states are shifted from the step start by angle addition (exact to rounding). The
+    /// joints, kinematics and everything else are evaluated at every stage as in `Rk4`. The
+    /// Magic Formula goes through [`super::tire::MfTables`] (relative error < 1e-8).
+    /// Not MODEL.md §10 to the last digit: its error is in docs/BENCHMARKS.md.
+    Rk4Multirate,
+    /// `Rk4Multirate` while a joint is in contact or was recently, and in free flight (no
+    /// contact anywhere in the step, checked at every stage and by a cubic through the
+    /// end-point penetrations) one RK4 step over up to [`ADAPTIVE_MAX_MERGE`] grid steps,
+    /// with the tires evaluated at every stage (tabulated Magic Formula as in
+    /// `Rk4Multirate`) and the §7 road noise averaged over the merged grid
+    /// intervals. A step that would touch a contact is rejected and redone on the grid, so
+    /// contact onsets are found on the grid as in `Rk4`. Merging happens only in
+    /// [`Simulator::advance`] (and [`run`]); `Simulator::step` is one grid step.
+    Rk4Adaptive,
 }
+
+impl Integrator {
+    /// The name used by `shimmy simulate --integrator` and in serde (snake_case).
+    pub fn name(self) -> &'static str {
+        match self {
+            Integrator::Rk4 => "rk4",
+            Integrator::Rk4WarmSlip => "rk4_warm_slip",
+            Integrator::Rk4Multirate => "rk4_multirate",
+            Integrator::Rk4Adaptive => "rk4_adaptive",
+        }
+    }
+
+    /// All schemes.
+    pub const ALL: [Integrator; 4] = [
+        Integrator::Rk4,
+        Integrator::Rk4WarmSlip,
+        Integrator::Rk4Multirate,
+        Integrator::Rk4Adaptive,
+    ];
+
+    /// Parses a name (snake_case as in serde, or with hyphens).
+    pub fn from_name(name: &str) -> Option<Self> {
+        let n = name.replace('-', "_");
+        Self::ALL.into_iter().find(|i| i.name() == n)
+    }
+
+    fn shares_trig(self) -> bool {
+        matches!(self, Integrator::Rk4Multirate | Integrator::Rk4Adaptive)
+    }
+}
+
+/// `Integrator::Rk4Multirate` evaluates the tires exactly every this many grid steps.
+pub const MULTIRATE_TIRE_EVERY: u64 = 2;
+
+/// Most grid steps `Integrator::Rk4Adaptive` merges into one free-flight step.
+pub const ADAPTIVE_MAX_MERGE: u64 = 10;
 
 impl Default for Scenario {
     fn default() -> Self {
@@ -180,6 +233,27 @@ pub struct Simulator {
     integrator: Integrator,
     /// Vehicle parameters (kept to rebuild the joint constants in `set_clearance`).
     params: VehicleParams,
+    /// Sines and cosines of the current state (kept by the multirate integrators).
+    trig: Trig,
+    /// Penetration and rate of each joint at the current state ((−∞, 0) if ideal).
+    pen: [(f64, f64); 2],
+    /// Multirate: the last three exact tire outputs, their times, how many are valid (0 =
+    /// restart), and the grid step of the newest.
+    tire_hist: [TireOut; 3],
+    tire_t: [f64; 3],
+    tire_n: usize,
+    tire_step: u64,
+    /// Adaptive: grid steps before this index are taken on the grid (after a contact or a
+    /// rejected merged step).
+    fine_until: u64,
+    /// Adaptive: exact tire outputs at the starts of the current and the previous merged
+    /// steps of an unbroken run of merged steps, and how many of them are valid.
+    merged_tires: [TireOut; 3],
+    merged_t: [f64; 3],
+    merged_valid: usize,
+    /// Adaptive: merged steps taken and rejected (diagnostics).
+    merged: u64,
+    rejected: u64,
 }
 
 /// Hold time of the road noise (MODEL.md §7: held over each step of h = 1e-4 s).
@@ -230,7 +304,12 @@ impl Simulator {
                 ramp_s: p.braking.ramp_s,
             },
             kappa_guess: [0.0; 2],
-            warm_slip: sc.integrator == Integrator::Rk4WarmSlip,
+            warm_slip: sc.integrator != Integrator::Rk4,
+            mf_table: if sc.integrator.shares_trig() {
+                Some(super::tire::MfTables::get())
+            } else {
+                None
+            },
         };
         let mut sim = Self {
             model,
@@ -243,6 +322,18 @@ impl Simulator {
             noise_stride,
             integrator: sc.integrator,
             params: p.clone(),
+            trig: Trig::default(),
+            pen: [(f64::NEG_INFINITY, 0.0); 2],
+            tire_hist: [TireOut::default(); 3],
+            tire_t: [0.0; 3],
+            tire_n: 0,
+            tire_step: 0,
+            fine_until: 0,
+            merged_tires: [TireOut::default(); 3],
+            merged_t: [0.0; 3],
+            merged_valid: 0,
+            merged: 0,
+            rejected: 0,
         };
         sim.update_contact_flags();
         Ok(sim)
@@ -297,9 +388,25 @@ impl Simulator {
     /// Switches the longitudinal input to an external demand (m/s², > 0 braking, < 0
     /// accelerating), held from now on until set again. Replaces the §6 event law.
     pub fn set_decel_demand(&mut self, a_mps2: f64) {
-        self.ctx.demand = Demand::External {
+        let demand = Demand::External {
             a_mps2: if a_mps2.is_finite() { a_mps2 } else { 0.0 },
         };
+        if demand != self.ctx.demand {
+            // A jump in the demand: do not extrapolate the tire forces across it.
+            self.tire_n = 0;
+            self.merged_valid = 0;
+        }
+        self.ctx.demand = demand;
+    }
+
+    /// The integration scheme.
+    pub fn integrator(&self) -> Integrator {
+        self.integrator
+    }
+
+    /// `Integrator::Rk4Adaptive`: (merged free-flight steps taken, merged steps rejected).
+    pub fn merge_stats(&self) -> (u64, u64) {
+        (self.merged, self.rejected)
     }
 
     /// Advances one step h: RK4 with contact flags, impact velocities and noise held, then the
@@ -307,12 +414,13 @@ impl Simulator {
     #[inline]
     pub fn step(&mut self) {
         let t = self.t();
-        let aux = match self.integrator {
+        match self.integrator {
             Integrator::Rk4 | Integrator::Rk4WarmSlip => {
-                rk4_step(&self.model, t, &mut self.y, self.h, &self.ctx)
+                let aux = rk4_step(&self.model, t, &mut self.y, self.h, &self.ctx);
+                self.ctx.kappa_guess = aux.kappa;
             }
-        };
-        self.ctx.kappa_guess = aux.kappa;
+            Integrator::Rk4Multirate | Integrator::Rk4Adaptive => self.multirate_step(t),
+        }
         self.steps += 1;
         self.update_contact_flags();
         if self.noise_on && self.steps.is_multiple_of(self.noise_stride) {
@@ -321,11 +429,157 @@ impl Simulator {
         }
     }
 
+    /// Advances `n` grid steps (time n·h). The same as calling [`Self::step`] `n` times,
+    /// except for `Integrator::Rk4Adaptive`, which merges free-flight grid steps here.
+    #[inline]
+    pub fn advance(&mut self, n: u64) {
+        if self.integrator != Integrator::Rk4Adaptive {
+            for _ in 0..n {
+                self.step();
+            }
+            return;
+        }
+        let end = self.steps + n;
+        while self.steps < end {
+            let m = (end - self.steps).min(ADAPTIVE_MAX_MERGE);
+            let free = self.ctx.v_imp[0].is_none() && self.ctx.v_imp[1].is_none();
+            if m >= 2 && free && self.steps >= self.fine_until && self.try_merged(m) {
+                continue;
+            }
+            if !free {
+                // Stay on the grid until ADAPTIVE_MAX_MERGE steps after the last contact.
+                self.fine_until = self.steps + 1 + ADAPTIVE_MAX_MERGE;
+            }
+            self.merged_valid = 0;
+            self.step();
+        }
+    }
+
+    /// One grid step of the multirate scheme: the tire outputs are evaluated exactly at the
+    /// start of every [`MULTIRATE_TIRE_EVERY`]-th grid step and extrapolated over the stages
+    /// by the parabola through the last three such values (a line or a hold after a restart).
+    #[inline]
+    fn multirate_step(&mut self, t: f64) {
+        if self.tire_n == 0 || self.steps - self.tire_step >= MULTIRATE_TIRE_EVERY {
+            let now = self.model.tires(t, &self.y, &self.trig, &self.ctx);
+            self.tire_hist = [now, self.tire_hist[0], self.tire_hist[1]];
+            self.tire_t = [t, self.tire_t[0], self.tire_t[1]];
+            self.tire_n = (self.tire_n + 1).min(3);
+            self.tire_step = self.steps;
+            self.ctx.kappa_guess = now.kappa;
+        }
+        let off = [self.tire_t[0] - t, self.tire_t[1] - t, self.tire_t[2] - t];
+        let tires = StageTires::Lagrange {
+            f: &self.tire_hist,
+            off,
+            n: self.tire_n,
+        };
+        rk4_step_shared(
+            &self.model,
+            t,
+            &mut self.y,
+            self.h,
+            &self.ctx,
+            &self.trig,
+            tires,
+        );
+    }
+
+    /// Tries one RK4 step over `m` grid steps in free flight (`Integrator::Rk4Adaptive`).
+    /// Accepted only if no clearance joint penetrates at any stage, at the end, or on the
+    /// cubic Hermite interpolant of δ through the two ends; otherwise everything is restored,
+    /// the next `m` grid steps are forced onto the grid, and false is returned.
+    fn try_merged(&mut self, m: u64) -> bool {
+        let t = self.t();
+        let y0 = self.y;
+        let exc0 = self.exc.clone();
+        let noise0 = self.ctx.noise;
+        // §7 noise: the held grid values averaged over the merged intervals.
+        let mut sum = [0.0; 2];
+        let mut k = self.steps;
+        for _ in 0..m {
+            sum[0] += self.ctx.noise[0];
+            sum[1] += self.ctx.noise[1];
+            k += 1;
+            if self.noise_on && k.is_multiple_of(self.noise_stride) {
+                self.exc.advance();
+                self.ctx.noise = self.exc.noise;
+            }
+        }
+        let noise_end = self.ctx.noise;
+        let inv_m = 1.0 / m as f64;
+        self.ctx.noise = [sum[0] * inv_m, sum[1] * inv_m];
+        let big_h = m as f64 * self.h;
+        // Tires: after two merged steps in a row, exact once at the step start and
+        // extrapolated over the stages by the parabola through the last three step starts;
+        // otherwise exact at every stage.
+        let now = self.model.tires(t, &self.y, &self.trig, &self.ctx);
+        let f = [now, self.merged_tires[0], self.merged_tires[1]];
+        let dt = [0.0, t - self.merged_t[0], t - self.merged_t[1]];
+        let tires = if self.merged_valid >= 2 {
+            StageTires::Lagrange {
+                f: &f,
+                off: [0.0, -dt[1], -dt[2]],
+                n: 3,
+            }
+        } else {
+            StageTires::Exact
+        };
+        let (aux, max_delta) = rk4_step_shared(
+            &self.model,
+            t,
+            &mut self.y,
+            big_h,
+            &self.ctx,
+            &self.trig,
+            tires,
+        );
+        let trig1 = Trig::exact(&self.model, &self.y);
+        let pen1 = self.model.penetrations_trig(&self.y, &trig1);
+        let mut ok = max_delta < 0.0 && self.y.iter().all(|v| v.is_finite());
+        for (i, (&p0, &p1)) in self.pen.iter().zip(&pen1).enumerate() {
+            if self.model.has_clearance(i) && ok {
+                ok = hermite_stays_negative(p0, p1, big_h);
+            }
+        }
+        if !ok {
+            self.y = y0;
+            self.exc = exc0;
+            self.ctx.noise = noise0;
+            self.fine_until = self.steps + m;
+            self.rejected += 1;
+            self.merged_valid = 0;
+            return false;
+        }
+        self.merged_tires = f;
+        self.merged_t = [t, self.merged_t[0], self.merged_t[1]];
+        self.merged_valid = (self.merged_valid + 1).min(3);
+        self.merged += 1;
+        self.steps += m;
+        self.trig = trig1;
+        self.pen = pen1;
+        self.ctx.noise = noise_end;
+        self.ctx.kappa_guess = if self.merged_valid >= 3 {
+            now.kappa
+        } else {
+            aux.kappa
+        };
+        // The grid steps that follow hold the tires for their first step.
+        self.tire_n = 0;
+        true
+    }
+
     /// §4: the flag is set at the first boundary with δ > 0, recording δ'⁻ (floored), and
     /// cleared at separation.
     #[inline]
     fn update_contact_flags(&mut self) {
-        let pen = self.model.penetrations(&self.y);
+        let pen = if self.integrator.shares_trig() {
+            self.trig = Trig::exact(&self.model, &self.y);
+            self.model.penetrations_trig(&self.y, &self.trig)
+        } else {
+            self.model.penetrations(&self.y)
+        };
+        self.pen = pen;
         for (i, &(delta, delta_dot)) in pen.iter().enumerate() {
             if delta > 0.0 {
                 if self.ctx.v_imp[i].is_none() {
@@ -425,15 +679,33 @@ pub fn run(p: &VehicleParams, sc: &Scenario) -> anyhow::Result<Trace> {
     let stride = ((1.0 / sc.output_hz) / sc.h_s).round().max(1.0) as u64;
     let mut samples = Vec::with_capacity((n_steps / stride + 1) as usize);
     samples.push(sim.outputs());
-    for k in 1..=n_steps {
-        sim.step();
-        if k % stride == 0 {
-            samples.push(sim.outputs());
-        }
+    for _ in 0..n_steps / stride {
+        sim.advance(stride);
+        samples.push(sim.outputs());
     }
     Ok(Trace {
         fs_hz: 1.0 / (stride as f64 * sc.h_s),
         samples,
         brake_onset_s: p.braking.onset_s,
+    })
+}
+
+/// Whether the cubic Hermite interpolant of a penetration δ through (δ0, δ0') at the start and
+/// (δ1, δ1') at the end of a step of length `h` stays negative (checked at eighths of the step).
+fn hermite_stays_negative((d0, r0): (f64, f64), (d1, r1): (f64, f64), h: f64) -> bool {
+    if !(d0 < 0.0 && d1 < 0.0) {
+        return false;
+    }
+    if d0 == f64::NEG_INFINITY {
+        return true;
+    }
+    (1..8).all(|j| {
+        let s = j as f64 / 8.0;
+        let (s2, s3) = (s * s, s * s * s);
+        let d = (2.0 * s3 - 3.0 * s2 + 1.0) * d0
+            + (s3 - 2.0 * s2 + s) * h * r0
+            + (-2.0 * s3 + 3.0 * s2) * d1
+            + (s3 - s2) * h * r1;
+        d < 0.0
     })
 }

@@ -1,19 +1,29 @@
 //! Clearance estimation (issue 5 item 3): a posterior over the response table's clearance grid,
 //! updated by each used braking event and diffused between events for wear.
 //!
-//! * Prior: uniform in ln c over the grid (clearances span an order of magnitude).
+//! * Vehicle-level nuisances: stiffness, damping, unbalance and road-noise level are the same for
+//!   all of a vehicle's events, so the events are NOT independent given the clearance. The
+//!   posterior is kept jointly over (clearance c, nuisance vehicle θ_m) for the table's M
+//!   nuisance vehicles ([`ResponseTable::n_vehicles`]); events multiply likelihoods within one
+//!   θ_m and the clearance posterior is the mixture over m,
+//!   p(c | events) ∝ p(c) · (1/M) Σ_m Π_e p(z_e | c, θ_m).
+//!   Thirty events then pin down "which vehicle × which clearance", and clearances that some
+//!   plausible vehicle explains equally well stay in the interval (the independent-event
+//!   product of a pooled spread would exclude them and be overconfident).
+//! * Prior: uniform in ln c over the grid (clearances span an order of magnitude), uniform over m.
 //! * Event update: the log-likelihood of the event's z ([`super::features::z`]: floored logs of
-//!   the band-passed RMS and peak) under each
-//!   clearance's predicted bivariate normal ([`ResponseTable::predict`] at the event's speed and
-//!   deceleration), with the predicted spread inflated by `std_inflation` (model mismatch) and a
-//!   small outlier floor so one odd event cannot veto a clearance.
+//!   the band-passed RMS and peak) under each (c, θ_m)'s predicted bivariate normal
+//!   ([`ResponseTable::predict`] at the event's speed and deceleration), with the predicted
+//!   spread inflated by `std_inflation` (model mismatch) and a small outlier floor so one odd
+//!   event cannot veto a clearance.
 //! * Between events: a random walk in ln c with variance `wear_var_per_km · distance`, so the
 //!   estimate can follow slow growth (wear) and old events count less.
 //! * Summary: posterior median and 5 %/95 % quantiles (piecewise log-linear CDF over the grid),
 //!   `P(c > threshold)` for the clearance alert, and `detectable = q05 > detection_limit`: when
 //!   the posterior cannot exclude the detection limit the estimate is reported as "below q95".
 //!
-//! Memory: three vectors of grid length, allocated in [`Estimator::new`]; updates do not allocate.
+//! Memory: vectors of length (clearances × M), allocated in [`Estimator::new`]; updates do not
+//! allocate.
 
 use serde::{Deserialize, Serialize};
 
@@ -38,7 +48,7 @@ pub struct EstimatorConfig {
 impl Default for EstimatorConfig {
     fn default() -> Self {
         EstimatorConfig {
-            std_inflation: 1.0,
+            std_inflation: 1.3,
             outlier_floor: 1e-3,
             wear_var_per_km: 1e-4,
             detection_limit_mm: 0.08,
@@ -62,8 +72,13 @@ pub struct Summary {
 pub struct Estimator {
     cfg: EstimatorConfig,
     ln_c: Vec<f64>,
+    /// Nuisance vehicles M.
+    n_m: usize,
+    /// Joint log posterior, index `ic · M + im`.
     log_p: Vec<f64>,
     scratch: Vec<f64>,
+    /// Marginal posterior probabilities over the clearance grid.
+    marg: Vec<f64>,
     use_rms: bool,
     use_peak: bool,
     last_odometer_m: Option<f64>,
@@ -79,10 +94,13 @@ impl Estimator {
             other => anyhow::bail!("estimator.features must be rms, peak or both, not `{other}`"),
         };
         let n = table.n_clearance();
+        let n_m = table.n_vehicles();
         let ln_c: Vec<f64> = table.clearance_mm.iter().map(|c| c.ln()).collect();
         Ok(Estimator {
-            log_p: vec![-(n as f64).ln(); n],
-            scratch: vec![0.0; n],
+            log_p: vec![-((n * n_m) as f64).ln(); n * n_m],
+            scratch: vec![0.0; n * n_m],
+            marg: vec![1.0 / n as f64; n],
+            n_m,
             ln_c,
             use_rms,
             use_peak,
@@ -120,29 +138,34 @@ impl Estimator {
         log_norm + m + ((core - m).exp() + (self.cfg.outlier_floor.ln() - m).exp()).ln()
     }
 
-    /// Random walk in ln c over `dist_km` (Gaussian kernel on the grid).
+    /// Random walk in ln c over `dist_km` (Gaussian kernel on the grid), for each nuisance
+    /// vehicle (wear changes the joint, not the vehicle).
     fn diffuse(&mut self, dist_km: f64) {
         let var = self.cfg.wear_var_per_km * dist_km.max(0.0);
         if var <= 0.0 {
             return;
         }
         let n = self.ln_c.len();
+        let nm = self.n_m;
         let mx = self.log_p.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        for i in 0..n {
-            let mut s = 0.0;
-            let mut wsum = 0.0;
-            for j in 0..n {
-                let d = self.ln_c[i] - self.ln_c[j];
-                let w = (-0.5 * d * d / var).exp();
-                s += w * (self.log_p[j] - mx).exp();
-                wsum += w;
+        for im in 0..nm {
+            for i in 0..n {
+                let mut s = 0.0;
+                let mut wsum = 0.0;
+                for j in 0..n {
+                    let d = self.ln_c[i] - self.ln_c[j];
+                    let w = (-0.5 * d * d / var).exp();
+                    s += w * (self.log_p[j * nm + im] - mx).exp();
+                    wsum += w;
+                }
+                self.scratch[i * nm + im] = (s / wsum.max(1e-300)).max(1e-300).ln() + mx;
             }
-            self.scratch[i] = (s / wsum.max(1e-300)).max(1e-300).ln() + mx;
         }
         std::mem::swap(&mut self.log_p, &mut self.scratch);
         self.normalise();
     }
 
+    /// Normalises the joint posterior and recomputes the clearance marginal.
     fn normalise(&mut self) {
         let mx = self.log_p.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         let s: f64 = self.log_p.iter().map(|l| (l - mx).exp()).sum();
@@ -150,6 +173,21 @@ impl Estimator {
         for l in &mut self.log_p {
             *l -= ln_s;
         }
+        for (ic, m) in self.marg.iter_mut().enumerate() {
+            *m = self.log_p[ic * self.n_m..(ic + 1) * self.n_m]
+                .iter()
+                .map(|l| l.exp())
+                .sum();
+        }
+    }
+
+    /// Posterior probability of each nuisance vehicle of the table (sums to 1).
+    pub fn vehicle_probabilities(&self) -> impl Iterator<Item = f64> + '_ {
+        (0..self.n_m).map(move |im| {
+            (0..self.ln_c.len())
+                .map(|ic| self.log_p[ic * self.n_m + im].exp())
+                .sum()
+        })
     }
 
     /// Adds one used event: its features, speed, deceleration and odometer (m).
@@ -168,16 +206,18 @@ impl Estimator {
         self.last_odometer_m = Some(odometer_m);
         let z = super::features::z(rms_deg, peak_deg);
         for ic in 0..self.ln_c.len() {
-            let p = table.predict(ic, v0_kmh, decel_g);
-            self.log_p[ic] += self.loglik(z, &p);
+            for im in 0..self.n_m {
+                let p = table.predict(ic, im, v0_kmh, decel_g);
+                self.log_p[ic * self.n_m + im] += self.loglik(z, &p);
+            }
         }
         self.normalise();
         self.events_used += 1;
     }
 
-    /// Posterior probabilities on the grid.
+    /// Posterior probabilities on the clearance grid (marginal over the nuisance vehicles).
     pub fn probabilities(&self) -> impl Iterator<Item = f64> + '_ {
-        self.log_p.iter().map(|l| l.exp())
+        self.marg.iter().copied()
     }
 
     /// Grid cell edges in ln c: midpoints, with half-steps beyond the ends.
@@ -197,7 +237,7 @@ impl Estimator {
         let mut acc = 0.0;
         let n = self.ln_c.len();
         for k in 0..n {
-            let p = self.log_p[k].exp();
+            let p = self.marg[k];
             if acc + p >= q && p > 0.0 {
                 let f = ((q - acc) / p).clamp(0.0, 1.0);
                 let (a, b) = (self.edge(k), self.edge(k + 1));
@@ -215,7 +255,7 @@ impl Estimator {
         for k in 0..self.ln_c.len() {
             let (a, b) = (self.edge(k), self.edge(k + 1));
             let frac = ((b - x) / (b - a)).clamp(0.0, 1.0);
-            s += self.log_p[k].exp() * frac;
+            s += self.marg[k] * frac;
         }
         s.clamp(0.0, 1.0)
     }

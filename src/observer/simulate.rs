@@ -1,11 +1,14 @@
 //! One simulated braking event seen through the observer (issue 5 items 2–3): the shimmy model
-//! (MODEL.md §6 event) is run, its steering-wheel angle δ_sw (§8) goes through the observer's
+//! is run through one braking event ([`EventShape`]: MODEL.md §6's event from a kick, or the
+//! event as a vehicle on the road sees it — seconds of cruising first, then firmware-sim's pedal
+//! law), its steering-wheel angle δ_sw (§8) goes through the observer's
 //! sensor model ([`super::sensor`]) and its speed through a 50 Hz speed signal, and the result
 //! is fed to the same [`Detector`] and [`Extractor`] that process a real log. So the features
 //! of a simulated event and of a measured one are computed by the same code.
 //!
-//! Also here: the nuisance draw ([`perturb`]: unbalance magnitude, ±10 % on the steering
-//! stiffnesses and dampings; unbalance phase and road noise come from the seed, MODEL.md §7).
+//! Also here: the nuisance draw of one vehicle ([`perturb`]: unbalance magnitude, ±10 % on the
+//! steering stiffnesses and dampings; [`perturb_vehicle`] adds the road-noise level; unbalance
+//! phase and road-noise realisation come from each event's seed, MODEL.md §7).
 //!
 //! What it is not: the table builder (that is `shimmy calibrate`) or firmware-sim's drive cycle.
 
@@ -28,6 +31,8 @@ pub struct NuisanceRanges {
     pub stiffness_damping_rel: f64,
     /// Unbalance magnitude factor range (log-uniform).
     pub unbalance_factor: (f64, f64),
+    /// Road-noise σ factor range (uniform), drawn by [`perturb_vehicle`] only.
+    pub road_noise_factor: (f64, f64),
 }
 
 impl Default for NuisanceRanges {
@@ -35,8 +40,48 @@ impl Default for NuisanceRanges {
         NuisanceRanges {
             stiffness_damping_rel: 0.10,
             unbalance_factor: (0.5, 2.0),
+            road_noise_factor: (0.7, 1.4),
         }
     }
+}
+
+/// One whole nuisance vehicle (issue 5: the nuisances are properties of a vehicle, shared by
+/// all its braking events): [`perturb`] followed by a uniform road-noise factor, in the order
+/// firmware-sim's fleet draws them.
+pub fn perturb_vehicle(
+    nominal: &VehicleParams,
+    r: &NuisanceRanges,
+    rng: &mut ChaCha8Rng,
+) -> VehicleParams {
+    let mut p = perturb(nominal, r, rng);
+    let (lo, hi) = r.road_noise_factor;
+    p.excitation.noise_std_nm *= rng.random_range(lo..hi);
+    p
+}
+
+/// How the simulated braking event starts.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum EventShape {
+    /// MODEL.md §6 as written: the steering system released with the initial kick θ1'(0) at
+    /// t = 0, the brake ramp at `braking.onset_s`, the pedal held to the end.
+    Single,
+    /// The event as a vehicle on the road sees it (firmware-sim's drive cycle, issue 4): no
+    /// kick, `cruise_s` of constant-speed driving first (unbalance and road noise bring the
+    /// steering system to its running state), then the pedal ramps in over `ramp_s` to the
+    /// plateau, holds `hold_s` at standstill and ramps out over `ramp_s`.
+    Drive { cruise_s: f64, hold_s: f64 },
+}
+
+impl EventShape {
+    /// The shape the response table uses by default, like firmware-sim's fleet drive: 6 s at
+    /// the initial speed (the fleet re-accelerates for several seconds and then holds the speed
+    /// for 1.5 s; at large clearances the rattle needs seconds to build up: at 0.29 mm and
+    /// 55 km/h the braking peak after 2 s of cruising is ~0.19°, after 6 s ~0.27°, as in the
+    /// fleet's logs), 0.5 s pedal hold at the stop.
+    pub const DRIVE: EventShape = EventShape::Drive {
+        cruise_s: 6.0,
+        hold_s: 0.5,
+    };
 }
 
 /// A vehicle like `nominal` with nuisances drawn from `rng`: each steering stiffness and
@@ -70,26 +115,43 @@ pub struct SimulatedEvent {
     pub used: bool,
 }
 
-/// Runs the §6 event at (`clearance_m`, `v0_mps`, `decel_g`) with `seed` on vehicle `p`.
+/// Speed below which the drive shape counts the car as stopped (m/s; firmware-sim's driver).
+const V_STANDSTILL_MPS: f64 = 0.02;
+
+/// Runs one braking event at (`clearance_m`, `v0_mps`, `decel_g`) with `seed` on vehicle `p`,
+/// started as `shape` says.
+#[allow(clippy::too_many_arguments)]
 pub fn simulate_event(
     p: &VehicleParams,
     clearance_m: f64,
     v0_mps: f64,
     decel_g: f64,
     seed: u64,
+    shape: EventShape,
     sensor: &SensorModel,
     cfg: &ObserverConfig,
 ) -> anyhow::Result<SimulatedEvent> {
     let g = p.vehicle.gravity_mps2;
-    let onset = p.braking.onset_s;
-    let stop_s = onset + p.braking.ramp_s / 2.0 + v0_mps / (decel_g * g).max(0.1);
+    let ramp = p.braking.ramp_s;
+    let (onset, kick, extra) = match shape {
+        EventShape::Single => (p.braking.onset_s, None, 0.0),
+        EventShape::Drive { cruise_s, hold_s } => (cruise_s, Some(0.0), hold_s + ramp),
+    };
+    let stop_s = onset + ramp / 2.0 + v0_mps / (decel_g * g).max(0.1);
     let sc = Scenario {
         clearance_m,
         seed,
         v0_mps,
         decel_g,
-        duration_s: (stop_s + cfg.events.tail_s + 0.5).min(3600.0),
+        // The §6 fade below v_stop makes the last 0.5 m/s take up to a second more.
+        duration_s: (stop_s
+            + extra
+            + cfg.events.tail_s
+            + 0.5
+            + if extra > 0.0 { 1.0 } else { 0.0 })
+        .min(3600.0),
         h_s: 1e-4,
+        kick_theta1_rad_s: kick,
         integrator: Integrator::Rk4WarmSlip,
         ..Scenario::default()
     };
@@ -99,10 +161,37 @@ pub fn simulate_event(
     let fs_true = 1.0 / (sc.h_s * stride as f64);
     let mut sw = Vec::with_capacity(n_steps / stride + 1);
     let mut speed = Vec::with_capacity(n_steps / stride + 1);
+    let mut pedal = Vec::with_capacity(n_steps / stride + 1);
+    // Drive shape: the driver's pedal (firmware-sim's drive.rs law), applied step by step.
+    let a_max = decel_g * g;
+    let mut t_stop: Option<f64> = None;
+    let mut released_at: Option<f64> = None;
     for k in 0..=n_steps {
+        let t = sim.t();
+        let pressed = match shape {
+            EventShape::Single => t >= onset,
+            EventShape::Drive { hold_s, .. } => {
+                let v = sim.state()[ix::V];
+                if t >= onset && t_stop.is_none() && v <= V_STANDSTILL_MPS {
+                    t_stop = Some(t);
+                }
+                let a = match t_stop {
+                    None if t < onset => 0.0,
+                    None => a_max * ((t - onset) / ramp).clamp(0.0, 1.0),
+                    Some(ts) if t < ts + hold_s => a_max,
+                    Some(ts) => a_max * (1.0 - (t - ts - hold_s) / ramp).max(0.0),
+                };
+                if t_stop.is_some_and(|ts| t >= ts + hold_s + ramp) {
+                    released_at.get_or_insert(t);
+                }
+                sim.set_decel_demand(a);
+                t >= onset && released_at.is_none()
+            }
+        };
         if k % stride == 0 {
             sw.push(sim.model().delta_sw(sim.state()));
             speed.push(sim.state()[ix::V]);
+            pedal.push(pressed);
         }
         if k < n_steps {
             sim.step();
@@ -138,7 +227,10 @@ pub fn simulate_event(
                 .ok();
             Some((r, f))
         };
-    let brake_at = |t_ns: i64| t_ns as f64 * 1e-9 >= onset;
+    let brake_at = |t_ns: i64| {
+        let i = ((t_ns as f64 * 1e-9) * fs_true).round() as usize;
+        pedal[i.min(pedal.len() - 1)]
+    };
     for &(t_ns, a) in &steer {
         while next_speed_ns <= t_ns && found.is_none() {
             let i = ((next_speed_ns as f64 * 1e-9) * fs_true).round() as usize;

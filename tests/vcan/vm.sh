@@ -34,6 +34,8 @@ Environment:
   SHIMMY_VCAN_CMD_TIMEOUT  seconds per command inside the VM (default 300)
   SHIMMY_VCAN_VM_TIMEOUT   seconds for the whole VM run, host side (default 900)
   SHIMMY_VCAN_LOAD_S       passed into the VM (seconds of reference bus traffic in live_vcan)
+
+Steps find the suite's firmware-sim through SHIMMY_FWSIM_BIN (set here when it is built).
 EOF
 }
 
@@ -184,6 +186,13 @@ build_static() {
     done
 }
 
+# True when the suite built an executable named $1.
+has_bin() {
+    local n
+    for n in "${BIN_NAMES[@]}"; do [ "$n" != "$1" ] || return 0; done
+    return 1
+}
+
 # ---- VM ------------------------------------------------------------------------------------------
 check_vm_tools() {
     local missing=()
@@ -225,6 +234,7 @@ build_initramfs() {
     done
     {
         echo "export SHIMMY_REQUIRE_VCAN=1 SHIMMY_VCAN_IF=vcan0 RUST_BACKTRACE=1"
+        ! has_bin firmware-sim || echo "export SHIMMY_FWSIM_BIN=/bin/firmware-sim"
         [ -z "${SHIMMY_VCAN_LOAD_S:-}" ] || echo "export SHIMMY_VCAN_LOAD_S=$SHIMMY_VCAN_LOAD_S"
         echo "WORKDIR='$ROOT' CMD_TIMEOUT=$CMD_TIMEOUT"
     } >"$w/env"
@@ -302,6 +312,8 @@ run_host() {
     rm -rf "$bindir"
     mkdir -p "$bindir"
     for i in "${!BIN_PATHS[@]}"; do ln -s "${BIN_PATHS[$i]}" "$bindir/${BIN_NAMES[$i]}"; done
+    local fwsim=""
+    ! has_bin firmware-sim || fwsim=$bindir/firmware-sim
     t0=$(date +%s.%N)
     for i in "${!COMMANDS[@]}"; do
         [ "${COMMANDS[$i]}" = "-" ] && continue
@@ -309,6 +321,7 @@ run_host() {
         echo "SHIMMY-VM-BEGIN step=$n cmd=${COMMANDS[$i]}"
         rc=0
         (cd "$ROOT" && PATH="$bindir:$PATH" SHIMMY_REQUIRE_VCAN=1 SHIMMY_VCAN_IF=$iface \
+            SHIMMY_FWSIM_BIN=$fwsim \
             timeout "$CMD_TIMEOUT" sh -c "${COMMANDS[$i]}" </dev/null 2>&1) || rc=$?
         echo "SHIMMY-VM-RESULT step=$n rc=$rc cmd=${COMMANDS[$i]}"
         [ $rc = 0 ] || failed=$((failed + 1))
