@@ -96,7 +96,7 @@ fn bench(c: &mut Criterion) {
         format!("model, {default:?}, h = {} s (default)", sc.step_s),
         rates(3, || model_sim(&sc), &mut buf),
     );
-    for integ in [Integrator::Rk4, Integrator::Rk4WarmSlip] {
+    for integ in Integrator::ALL {
         if integ == default {
             continue;
         }
@@ -106,6 +106,17 @@ fn bench(c: &mut Criterion) {
             format!("model, {integ:?}, h = {} s", s.step_s),
             rates(3, || model_sim(&s), &mut buf),
         );
+        if integ == Integrator::Rk4Adaptive {
+            // Merging needs several grid steps per `Plant::advance` call.
+            s.control_period_s = Some(1e-3);
+            row(
+                format!(
+                    "model, {integ:?}, h = {} s, control_period_s = 1e-3",
+                    s.step_s
+                ),
+                rates(3, || model_sim(&s), &mut buf),
+            );
+        }
     }
     let mut coarse = sc.clone();
     coarse.step_s = 2e-4;

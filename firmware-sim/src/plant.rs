@@ -246,9 +246,8 @@ impl Plant for ModelPlant {
         self.advance(1);
     }
     fn advance(&mut self, n: u64) {
-        for _ in 0..n {
-            self.sim.step();
-        }
+        // n grid steps; `Integrator::Rk4Adaptive` may merge free-flight steps among them.
+        self.sim.advance(n);
         let v = self.speed_mps();
         self.accel = (v - self.v_prev) / (n.max(1) as f64 * self.sim.h());
         self.v_prev = v;
