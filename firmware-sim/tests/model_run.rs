@@ -111,3 +111,28 @@ fn control_period_coarsens_only_the_driver_and_sampling() {
     let dist = |t: &serde_json::Value| t["distance_km"].as_f64().unwrap();
     assert!((dist(&ta) - dist(&tc)).abs() < 1e-4);
 }
+
+#[test]
+fn faster_integrators_are_deterministic_and_drive_the_same_cycle() {
+    let (a, ta) = run(SHORT);
+    let ta: serde_json::Value = serde_json::from_str(&ta).unwrap();
+    for extra in [
+        "integrator = \"rk4_multirate\"",
+        "integrator = \"rk4_adaptive\"\ncontrol_period_s = 1e-3",
+    ] {
+        let text = SHORT.replace("seed = 11", &format!("seed = 11\n{extra}"));
+        let (b, tb) = run(&text);
+        let (c, _) = run(&text);
+        assert!(b == c, "{extra}: same seed, different logs");
+        assert!(a != b, "{extra}: the scheme was not used");
+        let tb: serde_json::Value = serde_json::from_str(&tb).unwrap();
+        assert_eq!(ta["frames_sent"], tb["frames_sent"], "{extra}");
+        let (ea, eb) = (&ta["events"][0], &tb["events"][0]);
+        for k in ["v0_kmh", "v_end_kmh"] {
+            let (x, y) = (ea[k].as_f64().unwrap(), eb[k].as_f64().unwrap());
+            assert!((x - y).abs() < 0.1, "{extra}: {k}: {x} vs {y}");
+        }
+        let amp = eb["sw_amplitude_deg"].as_f64().unwrap();
+        assert!(amp > 0.01 && amp < 1.0, "{extra}: amplitude {amp}");
+    }
+}
