@@ -1,21 +1,29 @@
-//! firmware-sim throughput: simulated seconds per wall-clock second when writing a candump log
-//! (to an in-memory sink, so the disk is not measured). Target (issue 4): ≥ 100× real time on
-//! one core.
+//! firmware-sim throughput: simulated seconds per second when writing a candump log (to an
+//! in-memory sink, so the disk is not measured). Target (issue 4): ≥ 100× real time on one
+//! core.
 //!
-//! Run: `cargo bench -p firmware-sim --bench throughput`
+//! Run (one core): `taskset -c 0 cargo bench -p firmware-sim --bench throughput`
 //!
-//! `model_worn_0p2mm` is the real thing: the shimmy model (MODEL.md, RK4 at the scenario's
-//! h = 1e-4 s) driven through the bundled worn_0p2mm drive (29.8 s simulated), with the ECUs and
-//! candump formatting. `bus_only` replaces the model by a point-mass plant: the cost of the
-//! drive cycle, the ECU emulation (noise, DBC packing, counters, checksums) and candump
-//! formatting alone.
+//! `model_worn_0p2mm` is the real thing: the shimmy model (MODEL.md, the scenario's default
+//! integrator at h = 1e-4 s) driven through the bundled worn_0p2mm drive (24.5 s simulated),
+//! with the ECUs and candump formatting. `bus_only` replaces the model by a point-mass plant:
+//! the cost of the drive cycle, the ECU emulation (noise, DBC packing, counters, checksums) and
+//! candump formatting alone.
+//!
+//! Before criterion runs, a table is printed with, per configuration, simulated seconds per CPU
+//! second of this thread (independent of other load on the machine) and per wall second, over
+//! a few whole runs: the default, every other model integrator, the scenario's `step_s` knob at
+//! 2e-4 s (MODEL.md §10: a few percent from the reference; not the default), and
+//! `control_period_s = 1e-3` (demand and ECU sampling every 10 model steps; not the default).
 
 use std::path::PathBuf;
+use std::time::Instant;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use firmware_sim::bus::REFERENCE_DBC;
 use firmware_sim::plant::{ModelPlant, Plant, PointMass};
 use firmware_sim::{FirmwareSim, RunInfo, Scenario};
+use shimmy::model::Integrator;
 
 fn scenario() -> Scenario {
     let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/scenarios/worn_0p2mm.toml");
@@ -41,19 +49,28 @@ fn thread_cpu_s() -> Option<f64> {
     Some(ticks / 100.0)
 }
 
-/// Simulated seconds per CPU second over `n` full runs.
-fn cpu_rate<P: Plant>(
+/// (simulated s per CPU s, simulated s per wall s) over `n` whole runs, set-up included.
+fn rates<P: Plant>(
     n: usize,
     mut make: impl FnMut() -> FirmwareSim<P>,
     buf: &mut Vec<u8>,
-) -> Option<f64> {
-    let c0 = thread_cpu_s()?;
+) -> (Option<f64>, f64) {
+    let c0 = thread_cpu_s();
+    let w0 = Instant::now();
     let mut sim_s = 0.0;
     for _ in 0..n {
         sim_s += run(&mut make(), buf);
     }
-    let c1 = thread_cpu_s()?;
-    Some(sim_s / (c1 - c0).max(0.01))
+    let wall = w0.elapsed().as_secs_f64();
+    let cpu = c0
+        .zip(thread_cpu_s())
+        .map(|(a, b)| sim_s / (b - a).max(0.01));
+    (cpu, sim_s / wall)
+}
+
+fn model_sim(sc: &Scenario) -> FirmwareSim<ModelPlant> {
+    let plant = ModelPlant::new(sc, None).unwrap();
+    FirmwareSim::new(sc, plant, REFERENCE_DBC, RunInfo::default()).unwrap()
 }
 
 fn bench(c: &mut Criterion) {
@@ -65,23 +82,63 @@ fn bench(c: &mut Criterion) {
     };
     let sim_s = run(&mut point(), &mut buf);
     eprintln!(
-        "bus_only: scenario {} simulates {sim_s:.2} s per iteration ({} bytes of log)",
+        "scenario {} simulates {sim_s:.2} s per run ({} bytes of log)",
         sc.name,
         buf.len()
     );
-    let model = || {
-        let plant = ModelPlant::new(&sc, None).unwrap();
-        FirmwareSim::new(&sc, plant, REFERENCE_DBC, RunInfo::default()).unwrap()
+    eprintln!("configuration | sim s per CPU s | sim s per wall s");
+    let row = |name: String, (cpu, wall): (Option<f64>, f64)| {
+        let cpu = cpu.map_or("n/a".to_string(), |r| format!("{r:.1}x"));
+        eprintln!("{name} | {cpu} | {wall:.1}x");
     };
-    if let (Some(m), Some(p)) = (cpu_rate(3, model, &mut buf), cpu_rate(20, point, &mut buf)) {
-        eprintln!(
-            "simulated seconds per CPU second: model {m:.1}x real time, bus_only {p:.0}x real time"
+    let default = sc.integrator;
+    row(
+        format!("model, {default:?}, h = {} s (default)", sc.step_s),
+        rates(3, || model_sim(&sc), &mut buf),
+    );
+    for integ in Integrator::ALL {
+        if integ == default {
+            continue;
+        }
+        let mut s = sc.clone();
+        s.integrator = integ;
+        row(
+            format!("model, {integ:?}, h = {} s", s.step_s),
+            rates(3, || model_sim(&s), &mut buf),
         );
+        if integ == Integrator::Rk4Adaptive {
+            // Merging needs several grid steps per `Plant::advance` call.
+            s.control_period_s = Some(1e-3);
+            row(
+                format!(
+                    "model, {integ:?}, h = {} s, control_period_s = 1e-3",
+                    s.step_s
+                ),
+                rates(3, || model_sim(&s), &mut buf),
+            );
+        }
     }
+    let mut coarse = sc.clone();
+    coarse.step_s = 2e-4;
+    row(
+        format!("model, {default:?}, h = 2e-4 s (step_s knob)"),
+        rates(3, || model_sim(&coarse), &mut buf),
+    );
+    let mut ctl = sc.clone();
+    ctl.control_period_s = Some(1e-3);
+    row(
+        format!(
+            "model, {default:?}, h = {} s, control_period_s = 1e-3",
+            sc.step_s
+        ),
+        rates(3, || model_sim(&ctl), &mut buf),
+    );
+    row("bus_only (point mass)".into(), rates(20, point, &mut buf));
+
     let mut g = c.benchmark_group("firmware_sim");
     g.sample_size(10);
     g.bench_function("model_worn_0p2mm", |b| {
-        b.iter(|| run(&mut model(), &mut buf))
+        b.iter(|| run(&mut model_sim(&sc), &mut buf))
     });
     g.bench_function("bus_only_worn_0p2mm", |b| {
         b.iter(|| run(&mut point(), &mut buf))

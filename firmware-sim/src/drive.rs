@@ -79,8 +79,9 @@ enum Phase {
     Standing { t0: f64 },
 }
 
-/// The drive-cycle state machine. Call [`Driver::update`] once per model step (`step_s`) with
-/// the current time and speed.
+/// The drive-cycle state machine. Call [`Driver::update`] once per control update (every model
+/// step `step_s`, or every `control_period_s`: the `dt_s` given to [`Driver::new`]) with the
+/// current time and speed.
 #[derive(Clone, Debug)]
 pub struct Driver {
     drive: Drive,
@@ -90,12 +91,12 @@ pub struct Driver {
     last_demand: f64,
     events: Vec<BrakeEvent>,
     started: bool,
-    /// Model step (s): the interval between calls to `update`.
+    /// Interval between calls to `update` (s).
     dt_s: f64,
 }
 
 impl Driver {
-    pub fn new(drive: &Drive, step_s: f64) -> Driver {
+    pub fn new(drive: &Drive, dt_s: f64) -> Driver {
         let n_brakes = drive
             .segments
             .iter()
@@ -108,7 +109,7 @@ impl Driver {
             last_demand: 0.0,
             events: Vec::with_capacity(n_brakes),
             started: false,
-            dt_s: step_s,
+            dt_s,
         }
     }
 
@@ -120,7 +121,21 @@ impl Driver {
     /// Index of the braking event in progress (onset to release), if any.
     pub fn current_event(&self) -> Option<usize> {
         match self.phase {
-            Phase::Braking { .. } | Phase::StoppedHold { .. } | Phase::Release { .. } => {
+            Phase::Braking { .. } | Phase::StoppedHold { .. } | Phase::Release { .. }
+                if self.seg < self.drive.segments.len() =>
+            {
+                Some(self.events.len() - 1)
+            }
+            _ => None,
+        }
+    }
+
+    /// Index of the braking event that is decelerating the car (onset to `t_end_s`: the stop
+    /// or the end of the ramp-out), if any.
+    pub fn braking_event(&self) -> Option<usize> {
+        match self.phase {
+            // (After the last segment the phase is left as it was.)
+            Phase::Braking { .. } if self.seg < self.drive.segments.len() => {
                 Some(self.events.len() - 1)
             }
             _ => None,

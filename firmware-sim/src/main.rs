@@ -27,8 +27,9 @@ use firmware_sim::{FirmwareSim, RunInfo, Scenario};
 ///                    also record what was sent.
 ///
 /// Always written: a ground-truth sidecar (JSON) with the scenario name, file and seed, the true
-/// clearance, each braking event (t_start_s, t_end_s, v0_kmh,
-/// decel_g) with its true steering-wheel shimmy amplitude (MODEL.md §11), and per-message frame
+/// clearance of each joint (start, end, and at each braking event's onset and end, with the
+/// odometer), each braking event (t_start_s, t_end_s, v0_kmh, decel_g) with its true
+/// steering-wheel shimmy amplitude (MODEL.md §11) and joint contact statistics, and per-message frame
 /// counts (sent, dropped, bus-off, bad checksum). Times in it are seconds since the start of the
 /// log; frame timestamps are start_unix_s + t.
 ///
@@ -37,9 +38,16 @@ use firmware_sim::{FirmwareSim, RunInfo, Scenario};
 /// Scenario file (every table rejects unknown keys; units are in the key names):
 ///   seed = 20                      name, description, vehicle = "file.toml" (VehicleParams,
 ///                                  relative to the scenario; default MODEL.md §9), step_s
-///                                  (1e-4), start_unix_s are optional
-///   [clearance]  mode = "dual"|"single", left_mm, right_mm (= left_mm; the model has one
-///                clearance), growth_mm_per_km (must be 0 with the current model)
+///                                  (1e-4), integrator ("rk4_warm_slip"; the model's
+///                                  schemes, see `shimmy simulate --help`),
+///                                  control_period_s (= step_s: driver demand, ECU sampling
+///                                  and contact tally every model step; e.g. 1e-3 holds the
+///                                  demand over 10 steps), start_unix_s are optional
+///   [clearance]  mode = "dual" (both joints worn) | "single" (left worn, right ideal);
+///                left_mm (> 0, at the start of the run; both joints when right_mm is absent);
+///                right_mm (dual only: unequal wear); wear: wear_mm_per_1000km (0; growth of
+///                every worn joint with distance driven, applied every 0.1 s), max_mm (2.0; wear
+///                stops there), odometer_km (0; odometer at the start, reported in the truth)
 ///   [drive]      start_speed_kmh, accel_g (0.15), coast_g (0.05), then segments in order:
 ///   [[drive.segment]] kind = "cruise": speed_kmh, duration_s (reached first at accel_g)
 ///   [[drive.segment]] kind = "brake":  decel_g, ramp_in_s (0.3), ramp_out_s (0.3),
@@ -166,6 +174,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     if let Some(log) = log {
         log.finish()?;
     }
+    if let Some(e) = sim.error() {
+        bail!("{e}");
+    }
     let elapsed = wall.elapsed().as_secs_f64();
     let truth = sim.ground_truth();
     std::fs::write(&truth_path, truth.to_json() + "\n")
@@ -182,6 +193,19 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             truth.distance_km,
             truth.frames_sent
         );
+        let c = &truth.clearance;
+        eprintln!(
+            "  clearance L/R ({}): {:.4}/{:.4} mm at {:.3} km -> {:.4}/{:.4} mm at {:.3} km (wear {} mm per 1000 km, max {} mm)",
+            c.mode,
+            c.left_mm_start,
+            c.right_mm_start,
+            c.odometer_km_start,
+            c.left_mm_end,
+            c.right_mm_end,
+            c.odometer_km_end,
+            c.wear_mm_per_1000km,
+            c.max_mm
+        );
         for m in &truth.messages {
             eprintln!(
                 "  {:<18} 0x{:03X}: sent {:>6}  dropped {}  bus-off {}  bad checksum {}  stuck {}",
@@ -190,7 +214,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         }
         for e in &truth.events {
             eprintln!(
-                "  brake #{}: t {:.2}–{:.2} s, {:.1} km/h at {:.2} g, clearance {:.3}/{:.3} mm, steering-wheel shimmy {:.3}°",
+                "  brake #{}: t {:.2}–{:.2} s, {:.1} km/h at {:.2} g, clearance L/R {:.4}/{:.4} mm, contact L/R {:.0}/{:.0} %, steering-wheel shimmy {:.3}°",
                 e.index,
                 e.event.t_start_s,
                 e.event.t_end_s,
@@ -198,6 +222,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 e.event.decel_g,
                 e.clearance_left_mm,
                 e.clearance_right_mm,
+                e.contact_fraction[0] * 100.0,
+                e.contact_fraction[1] * 100.0,
                 e.sw_amplitude_deg
             );
         }

@@ -16,11 +16,26 @@ pub trait Plant {
     fn t_s(&self) -> f64;
     /// Advance one step. Must not allocate.
     fn step(&mut self);
+    /// Advance `n` steps with the inputs held; afterwards `accel_mps2` is the mean over them.
+    /// The same as `n` calls of [`Plant::step`] unless the plant has a faster way (a model
+    /// integrator that merges steps). Must not allocate.
+    fn advance(&mut self, n: u64) {
+        for _ in 0..n {
+            self.step();
+        }
+    }
     /// Longitudinal demand for the next steps (m/s², + = decelerating). The plant fades braking
     /// demand by `min(1, v/v_stop)` (MODEL.md §6) so the car stops rather than reverses.
     fn set_decel_demand(&mut self, a_mps2: f64);
-    /// Current joint clearances (m), for wear growth (MODEL.md §4).
-    fn set_clearance_m(&mut self, left_m: f64, right_m: f64);
+    /// Set the joint clearances (m) from now on, for wear growth (MODEL.md §4). A plant
+    /// without joints ignores it. Errors (changing nothing) on a value the plant cannot use.
+    /// Must not allocate.
+    fn set_clearance_m(&mut self, left_m: f64, right_m: f64) -> anyhow::Result<()>;
+    /// Whether each joint (left, right) is in contact at the current step boundary (MODEL.md
+    /// §4); `[false; 2]` for a plant without joints.
+    fn in_contact(&self) -> [bool; 2] {
+        [false; 2]
+    }
     /// Vehicle speed (m/s).
     fn speed_mps(&self) -> f64;
     /// Longitudinal acceleration of the body (m/s², + = speeding up).
@@ -133,10 +148,19 @@ impl Plant for PointMass {
         self.steer = self.shimmy_amplitude_rad
             * (2.0 * std::f64::consts::PI * self.shimmy_hz * self.t).sin();
     }
+    fn advance(&mut self, n: u64) {
+        let v0 = self.v;
+        for _ in 0..n {
+            self.step();
+        }
+        self.accel = (self.v - v0) / (n.max(1) as f64 * self.h);
+    }
     fn set_decel_demand(&mut self, a_mps2: f64) {
         self.a_dem = a_mps2;
     }
-    fn set_clearance_m(&mut self, _left_m: f64, _right_m: f64) {}
+    fn set_clearance_m(&mut self, _left_m: f64, _right_m: f64) -> anyhow::Result<()> {
+        Ok(())
+    }
     fn speed_mps(&self) -> f64 {
         self.v
     }
@@ -147,15 +171,17 @@ impl Plant for PointMass {
         self.steer
     }
 }
+
 /// The project's 5-DOF shimmy model (`shimmy::model::Simulator`, MODEL.md) as the plant, with
 /// the longitudinal demand as an external input each step (replacing MODEL.md §6's single event
-/// law) so whole drive cycles can be run.
+/// law) so whole drive cycles can be run, and a clearance per joint that may change during the
+/// run (unequal wear, wear growth: `Simulator::set_clearance`).
 ///
-/// Limits of the model that the adapter reports as scenario errors rather than approximating:
-/// one clearance value for both joints (dual) or the left joint only (single, MODEL.md §4), and
-/// no change of clearance during a run (so no wear growth).
+/// With `mode = "single"` the model's right joint is ideal (MODEL.md §4) and its clearance value
+/// unused; the adapter gives it the left value so the model's range check passes.
 pub struct ModelPlant {
     sim: shimmy::model::Simulator,
+    single: bool,
     v_prev: f64,
     accel: f64,
 }
@@ -167,7 +193,7 @@ impl ModelPlant {
         sc: &crate::scenario::Scenario,
         vehicle: Option<&std::path::Path>,
     ) -> anyhow::Result<ModelPlant> {
-        use anyhow::{bail, Context};
+        use anyhow::Context;
         use shimmy::model::{JointMode, Scenario as ModelScenario, Simulator, VehicleParams};
         let mut p = match vehicle {
             Some(path) => VehicleParams::from_toml_file(path)
@@ -176,29 +202,13 @@ impl ModelPlant {
         };
         p.excitation.unbalance_kgm = sc.excitation.unbalance_kgm;
         p.excitation.noise_std_nm = sc.excitation.road_noise_nm;
+        sc.validate()?;
         let c = &sc.clearance;
-        if let (crate::scenario::ClearanceMode::Dual, Some(r)) = (c.mode, c.right_mm) {
-            if (r - c.left_mm).abs() > 1e-12 {
-                bail!(
-                    "clearance.right_mm = {r} differs from clearance.left_mm = {}: the model \
-                     (MODEL.md §4) has one clearance for both joints; use equal values or \
-                     mode = \"single\"",
-                    c.left_mm
-                );
-            }
-        }
-        if c.growth_mm_per_km > 0.0 {
-            bail!(
-                "clearance.growth_mm_per_km = {}: the model (shimmy::model::Simulator) cannot \
-                 change its clearance during a run yet; set it to 0",
-                c.growth_mm_per_km
-            );
-        }
-        if c.left_mm <= 0.0 {
-            bail!("clearance.left_mm must be > 0 for the model (a new joint has about 0.03 mm)");
-        }
+        let single = c.mode == crate::scenario::ClearanceMode::Single;
+        let (left_mm, right_mm) = c.at_distance_mm(0.0);
         let msc = ModelScenario {
-            clearance_m: c.left_mm * 1e-3,
+            clearance_m: left_mm * 1e-3,
+            clearance_right_m: (!single && right_mm != left_mm).then_some(right_mm * 1e-3),
             joints: match c.mode {
                 crate::scenario::ClearanceMode::Dual => JointMode::Dual,
                 crate::scenario::ClearanceMode::Single => JointMode::Single,
@@ -209,17 +219,22 @@ impl ModelPlant {
             h_s: sc.step_s,
             unbalance: sc.excitation.unbalance_kgm > 0.0,
             noise: sc.excitation.road_noise_nm > 0.0,
-            // Same solution as plain RK4 (to 1e-10 slip), fewer Newton iterations.
-            integrator: shimmy::model::Integrator::Rk4WarmSlip,
+            integrator: sc.integrator,
             ..ModelScenario::default()
         };
         let sim = Simulator::new(&p, &msc).context("cannot set up the shimmy model")?;
         let v = sim.state()[shimmy::model::rhs::ix::V];
         Ok(ModelPlant {
             sim,
+            single,
             v_prev: v,
             accel: 0.0,
         })
+    }
+
+    /// The clearances (left, right) the model is using now (m).
+    pub fn clearance_m(&self) -> [f64; 2] {
+        self.sim.clearance_m()
     }
 }
 
@@ -228,16 +243,24 @@ impl Plant for ModelPlant {
         self.sim.t()
     }
     fn step(&mut self) {
-        self.sim.step();
+        self.advance(1);
+    }
+    fn advance(&mut self, n: u64) {
+        // n grid steps; `Integrator::Rk4Adaptive` may merge free-flight steps among them.
+        self.sim.advance(n);
         let v = self.speed_mps();
-        self.accel = (v - self.v_prev) / self.sim.h();
+        self.accel = (v - self.v_prev) / (n.max(1) as f64 * self.sim.h());
         self.v_prev = v;
     }
     fn set_decel_demand(&mut self, a_mps2: f64) {
         self.sim.set_decel_demand(a_mps2);
     }
-    fn set_clearance_m(&mut self, _left_m: f64, _right_m: f64) {
-        // Rejected in `new` (no wear growth with this model yet).
+    fn set_clearance_m(&mut self, left_m: f64, right_m: f64) -> anyhow::Result<()> {
+        let right_m = if self.single { left_m } else { right_m };
+        Ok(self.sim.set_clearance(left_m, right_m)?)
+    }
+    fn in_contact(&self) -> [bool; 2] {
+        self.sim.in_contact()
     }
     fn speed_mps(&self) -> f64 {
         self.sim.state()[shimmy::model::rhs::ix::V]

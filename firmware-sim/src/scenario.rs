@@ -34,6 +34,19 @@ pub struct Scenario {
     /// Model integration step (s); MODEL.md §10 uses 1e-4.
     #[serde(default = "default_step_s")]
     pub step_s: f64,
+    /// Integration scheme of the model (`shimmy::model::Integrator`, snake_case name).
+    /// Default `rk4_warm_slip`: MODEL.md §10's RK4 with the slip iteration warm-started (the
+    /// same solution as `rk4` to 1e-10 slip, fewer Newton iterations). Any scheme is
+    /// deterministic; logs are byte-identical only for the same scheme.
+    #[serde(default = "default_integrator")]
+    pub integrator: shimmy::model::Integrator,
+    /// How often the driver updates the longitudinal demand, the ECUs sample the plant and
+    /// joint contact is tallied (s); the plant advances this far per update in one
+    /// `Plant::advance` call (so a model integrator that merges grid steps can). A multiple of
+    /// `step_s` that divides the 1 ms ground-truth trace interval. Absent: every model step
+    /// (the reference behaviour; logs then do not depend on this key).
+    #[serde(default)]
+    pub control_period_s: Option<f64>,
     /// Start of the log as Unix time (s); frame timestamps are this plus simulated time.
     #[serde(default = "default_start_unix_s")]
     pub start_unix_s: f64,
@@ -52,26 +65,70 @@ pub struct Scenario {
 fn default_step_s() -> f64 {
     1e-4
 }
+fn default_integrator() -> shimmy::model::Integrator {
+    shimmy::model::Integrator::Rk4WarmSlip
+}
 fn default_start_unix_s() -> f64 {
     // 2026-01-01T00:00:00Z: a fixed epoch so logs are reproducible.
     1_767_225_600.0
 }
 
-/// True clearance of the two arm/tie-rod joints (MODEL.md §4).
+/// True clearance of the two arm/tie-rod joints (MODEL.md §4), and how it grows with wear.
+///
+/// Wear law: every worn joint's clearance grows linearly with the distance driven,
+/// `c(d) = min(max_mm, c_start + wear_mm_per_1000km · d / 1000 km)`, where `d` is the distance
+/// since the start of the run. Real joints wear by roughly 0.001–0.01 mm per 1000 km; a short
+/// test drive shows wear only with a much larger rate, which is allowed (up to
+/// [`MAX_WEAR_MM_PER_1000KM`]). `odometer_km` places the run on the car's life (reported in the
+/// ground truth with every clearance, so wear tracking can be scored against the odometer); the
+/// clearance at that reading is `left_mm` / `right_mm`. For a car with new-joint clearance `c0`
+/// at odometer 0, set `left_mm = c0 + rate · odometer_km / 1000`.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Clearance {
     /// `dual` (both joints worn) or `single` (left joint worn, right joint ideal).
     #[serde(default)]
     pub mode: ClearanceMode,
-    /// Radial clearance of the left joint (mm) at the start.
+    /// Radial clearance of the left joint (mm) at the start of the run. With `dual` and no
+    /// `right_mm`, the clearance of both joints.
     pub left_mm: f64,
-    /// Radial clearance of the right joint (mm); ignored for `single`. Default: `left_mm`.
+    /// Radial clearance of the right joint (mm) at the start, when it differs from the left
+    /// (unequal wear). Default: `left_mm`. Not allowed with `single` (the right joint is ideal).
     #[serde(default)]
     pub right_mm: Option<f64>,
-    /// Wear: clearance growth per kilometre driven (mm/km), applied to every worn joint.
+    /// Wear: clearance growth of every worn joint per 1000 km driven (mm). 0 = no wear.
     #[serde(default)]
-    pub growth_mm_per_km: f64,
+    pub wear_mm_per_1000km: f64,
+    /// Wear stops when a joint reaches this clearance (mm). Default [`MAX_CLEARANCE_MM`].
+    #[serde(default)]
+    pub max_mm: Option<f64>,
+    /// Odometer reading at the start of the run (km).
+    #[serde(default)]
+    pub odometer_km: f64,
+}
+
+/// Largest clearance a scenario accepts (mm); also the default wear cap.
+pub const MAX_CLEARANCE_MM: f64 = 2.0;
+/// Largest wear rate a scenario accepts (mm per 1000 km): 0.1 mm per 1 km, enough for a short
+/// test drive to double a worn joint's clearance.
+pub const MAX_WEAR_MM_PER_1000KM: f64 = 100.0;
+
+impl Clearance {
+    /// Clearances (left, right) in mm after driving `distance_m` since the start (the wear law
+    /// above). The right joint is 0 with `single` (ideal, no wear).
+    pub fn at_distance_mm(&self, distance_m: f64) -> (f64, f64) {
+        let cap = self.max_mm.unwrap_or(MAX_CLEARANCE_MM);
+        let grow = self.wear_mm_per_1000km * distance_m.max(0.0) * 1e-6;
+        let left = (self.left_mm + grow).min(cap).max(self.left_mm);
+        let right = match self.mode {
+            ClearanceMode::Single => 0.0,
+            ClearanceMode::Dual => {
+                let r0 = self.right_mm.unwrap_or(self.left_mm);
+                (r0 + grow).min(cap).max(r0)
+            }
+        };
+        (left, right)
+    }
 }
 
 #[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
@@ -349,10 +406,22 @@ impl Scenario {
 
     /// Right clearance (mm) at the start: `right_mm`, else `left_mm`; 0 for `single`.
     pub fn right_clearance_mm(&self) -> f64 {
-        match self.clearance.mode {
-            ClearanceMode::Single => 0.0,
-            ClearanceMode::Dual => self.clearance.right_mm.unwrap_or(self.clearance.left_mm),
+        self.clearance.at_distance_mm(0.0).1
+    }
+
+    /// Model steps per control update (see `control_period_s`): 1 when the key is absent.
+    pub fn control_steps(&self) -> u64 {
+        match self.control_period_s {
+            Some(cp) => (cp / self.step_s).round().max(1.0) as u64,
+            None => 1,
         }
+    }
+
+    /// Model steps per sample of the 1 kHz ground-truth δ_sw trace.
+    pub fn trace_steps(&self) -> u64 {
+        ((1.0 / crate::sim::TRACE_HZ) / self.step_s)
+            .round()
+            .max(1.0) as u64
     }
 
     /// Check ranges and cross-field rules; the error names the key.
@@ -363,18 +432,58 @@ impl Scenario {
             }
             Ok(())
         }
+        fn positive(key: &str, v: f64, hi: f64) -> anyhow::Result<()> {
+            if !(v.is_finite() && v > 0.0 && v <= hi) {
+                bail!("{key} = {v} must be > 0 and <= {hi}");
+            }
+            Ok(())
+        }
         range("step_s", self.step_s, 1e-6, 1e-3)?;
         range("start_unix_s", self.start_unix_s, 0.0, 4e9)?;
-        range("clearance.left_mm", self.clearance.left_mm, 0.0, 2.0)?;
-        if let Some(r) = self.clearance.right_mm {
-            range("clearance.right_mm", r, 0.0, 2.0)?;
+        if let Some(cp) = self.control_period_s {
+            range("control_period_s", cp, self.step_s, 1e-3)?;
+            let k = self.control_steps();
+            if (k as f64 * self.step_s - cp).abs() > 1e-6 * cp
+                || !self.trace_steps().is_multiple_of(k)
+            {
+                bail!(
+                    "control_period_s = {cp} must be a whole number of model steps (step_s = {}) \
+                     dividing the 1 ms trace interval, e.g. {} or {}",
+                    self.step_s,
+                    self.step_s,
+                    self.trace_steps() as f64 * self.step_s
+                );
+            }
+        }
+        let c = &self.clearance;
+        // The model needs a clearance > 0 (MODEL.md §4); a new joint has about 0.03 mm.
+        positive("clearance.left_mm", c.left_mm, MAX_CLEARANCE_MM)?;
+        if let Some(r) = c.right_mm {
+            if c.mode == ClearanceMode::Single {
+                bail!(
+                    "clearance.right_mm = {r} with mode = \"single\": the right joint is ideal \
+                     there; remove right_mm or use mode = \"dual\""
+                );
+            }
+            positive("clearance.right_mm", r, MAX_CLEARANCE_MM)?;
         }
         range(
-            "clearance.growth_mm_per_km",
-            self.clearance.growth_mm_per_km,
+            "clearance.wear_mm_per_1000km",
+            c.wear_mm_per_1000km,
             0.0,
-            1.0,
+            MAX_WEAR_MM_PER_1000KM,
         )?;
+        range("clearance.odometer_km", c.odometer_km, 0.0, 5e6)?;
+        if let Some(cap) = c.max_mm {
+            positive("clearance.max_mm", cap, MAX_CLEARANCE_MM)?;
+            let start = c.left_mm.max(self.right_clearance_mm());
+            if cap < start {
+                bail!(
+                    "clearance.max_mm = {cap} is below the starting clearance {start} mm \
+                     (left_mm / right_mm)"
+                );
+            }
+        }
         let d = &self.drive;
         range("drive.start_speed_kmh", d.start_speed_kmh, 0.0, 250.0)?;
         range("drive.accel_g", d.accel_g, 0.01, 0.6)?;
@@ -563,6 +672,91 @@ decel_g = 0.5
         );
         let err = format!("{:#}", Scenario::parse(&text, "test").unwrap_err());
         assert!(err.contains("stand"), "{err}");
+    }
+
+    fn err(text: &str) -> String {
+        format!("{:#}", Scenario::parse(text, "test").unwrap_err())
+    }
+
+    #[test]
+    fn invalid_clearance_and_wear_values_name_their_key() {
+        let with = |extra: &str| MINIMAL.replace("left_mm = 0.2", extra);
+        let e = err(&with("left_mm = 0.2\nwear_mm_per_1000km = -1.0"));
+        assert!(e.contains("clearance.wear_mm_per_1000km = -1"), "{e}");
+        let e = err(&with("left_mm = 0.0"));
+        assert!(
+            e.contains("clearance.left_mm = 0") && e.contains("> 0"),
+            "{e}"
+        );
+        let e = err(&with("left_mm = -0.1"));
+        assert!(e.contains("clearance.left_mm"), "{e}");
+        let e = err(&with("left_mm = 0.2\nright_mm = 0.0"));
+        assert!(e.contains("clearance.right_mm = 0"), "{e}");
+        let e = err(&with("left_mm = 0.2\nmax_mm = 0.0"));
+        assert!(e.contains("clearance.max_mm"), "{e}");
+        let e = err(&with("left_mm = 0.2\nright_mm = 0.3\nmax_mm = 0.25"));
+        assert!(
+            e.contains("clearance.max_mm = 0.25") && e.contains("0.3"),
+            "{e}"
+        );
+        let e = err(&with("left_mm = 0.2\nodometer_km = -5.0"));
+        assert!(e.contains("clearance.odometer_km"), "{e}");
+        let e = err(&with("mode = \"single\"\nleft_mm = 0.2\nright_mm = 0.1"));
+        assert!(
+            e.contains("clearance.right_mm") && e.contains("single"),
+            "{e}"
+        );
+        // The key of the old, always-refused wear option is now an unknown key, named as such.
+        let e = err(&with("left_mm = 0.2\ngrowth_mm_per_km = 0.1"));
+        assert!(e.contains("growth_mm_per_km"), "{e}");
+    }
+
+    #[test]
+    fn wear_law_is_linear_in_distance_and_capped() {
+        let text = MINIMAL.replace(
+            "left_mm = 0.2",
+            "left_mm = 0.1\nright_mm = 0.2\nwear_mm_per_1000km = 50.0\nmax_mm = 0.25",
+        );
+        let c = Scenario::parse(&text, "test").unwrap().clearance;
+        assert_eq!(c.at_distance_mm(0.0), (0.1, 0.2));
+        let (l, r) = c.at_distance_mm(500.0); // 0.5 km at 50 mm per 1000 km: +0.025 mm
+        assert!(
+            (l - 0.125).abs() < 1e-12 && (r - 0.225).abs() < 1e-12,
+            "{l} {r}"
+        );
+        let (l, r) = c.at_distance_mm(2000.0);
+        assert!((l - 0.2).abs() < 1e-12 && r == 0.25, "{l} {r}");
+        // Single: only the (left) worn joint grows; the ideal right joint stays 0.
+        let single = MINIMAL.replace(
+            "left_mm = 0.2",
+            "mode = \"single\"\nleft_mm = 0.1\nwear_mm_per_1000km = 50.0",
+        );
+        let c = Scenario::parse(&single, "test").unwrap().clearance;
+        let (l, r) = c.at_distance_mm(1000.0);
+        assert!((l - 0.15).abs() < 1e-12 && r == 0.0, "{l} {r}");
+    }
+
+    #[test]
+    fn integrator_defaults_to_warm_slip_rk4_and_unknown_names_are_named() {
+        use shimmy::model::Integrator;
+        let sc = Scenario::parse(MINIMAL, "test").unwrap();
+        assert_eq!(sc.integrator, Integrator::Rk4WarmSlip);
+        let sc = Scenario::parse(&format!("integrator = \"rk4\"\n{MINIMAL}"), "test").unwrap();
+        assert_eq!(sc.integrator, Integrator::Rk4);
+        let e = err(&format!("integrator = \"rk5\"\n{MINIMAL}"));
+        assert!(e.contains("rk5"), "{e}");
+    }
+
+    #[test]
+    fn control_period_must_be_whole_steps_dividing_the_trace_interval() {
+        let with = |cp: &str| format!("control_period_s = {cp}\n{MINIMAL}");
+        let sc = Scenario::parse(&with("5e-4"), "test").unwrap();
+        assert_eq!(sc.control_steps(), 5);
+        assert_eq!(Scenario::parse(MINIMAL, "test").unwrap().control_steps(), 1);
+        for bad in ["1.5e-4", "3e-4", "2e-3", "5e-5", "-1e-3"] {
+            let e = err(&with(bad));
+            assert!(e.contains("control_period_s"), "{bad}: {e}");
+        }
     }
 
     #[test]

@@ -23,6 +23,10 @@ use crate::truth::{self, GroundTruth};
 
 /// Rate of the δ_sw trace kept for the ground truth (Hz), MODEL.md §10's output rate.
 pub const TRACE_HZ: f64 = 1000.0;
+/// Interval at which the wear law updates the plant's clearances (s of simulated time). At
+/// 130 km/h and the largest accepted rate this is a step of 0.36 µm, far below what the model
+/// resolves.
+pub const WEAR_UPDATE_S: f64 = 0.1;
 /// Safety limit on simulated time beyond the scenario's own estimate (s).
 const EXTRA_TIME_S: f64 = 600.0;
 /// Driving on (pedal released, demand zero) after the last segment so the MODEL.md §11 window
@@ -34,6 +38,17 @@ pub const TAIL_S: f64 = 0.5;
 pub struct RunInfo {
     pub scenario_file: Option<String>,
     pub vehicle_file: Option<String>,
+}
+
+/// Clearances and contact of one braking event, accumulated while it decelerates.
+#[derive(Clone, Copy, Debug)]
+struct EventJoints {
+    clearance_start_mm: (f64, f64),
+    clearance_end_mm: (f64, f64),
+    odometer_km: f64,
+    steps: u64,
+    contact_steps: [u64; 2],
+    impacts: [u64; 2],
 }
 
 /// A running simulation.
@@ -50,12 +65,20 @@ pub struct FirmwareSim<P: Plant> {
     batch_pos: usize,
     h_s: f64,
     steps: u64,
+    /// Model steps per control update (`Scenario::control_steps`).
+    chunk: u64,
     trace_every: u64,
     trace: Vec<f64>,
     distance_m: f64,
     clearance_mm: (f64, f64),
-    /// Clearance when each event began.
-    event_clearance: Vec<(f64, f64)>,
+    /// Steps between wear updates (0: no wear).
+    wear_every: u64,
+    /// What happened to the joints during each braking event.
+    event_joints: Vec<EventJoints>,
+    /// Contact flags after the previous step (for counting impacts).
+    contact_prev: [bool; 2],
+    /// The plant refused a clearance (ends the run; see [`FirmwareSim::error`]).
+    error: Option<String>,
     last_cmd: DriveCmd,
     /// When the drive cycle ended (the tail runs from there).
     t_cycle_end: Option<f64>,
@@ -84,7 +107,8 @@ impl<P: Plant> FirmwareSim<P> {
             scenario.seed,
             t0_ns,
         )?;
-        let trace_every = ((1.0 / TRACE_HZ) / h).round().max(1.0) as u64;
+        let trace_every = scenario.trace_steps();
+        let chunk = scenario.control_steps();
         let mut lane_rng = ChaCha8Rng::seed_from_u64(scenario.seed);
         lane_rng.set_stream(1);
         let d = &scenario.driver;
@@ -96,12 +120,24 @@ impl<P: Plant> FirmwareSim<P> {
         );
         lane.warm_up(&mut lane_rng);
         let est = estimate_duration_s(scenario);
-        let clearance_mm = (scenario.clearance.left_mm, scenario.right_clearance_mm());
+        let clearance_mm = scenario.clearance.at_distance_mm(0.0);
+        let wear_every = if scenario.clearance.wear_mm_per_1000km > 0.0 {
+            // On the trace grid, so every control period divides it.
+            (WEAR_UPDATE_S * TRACE_HZ).round() as u64 * trace_every
+        } else {
+            0
+        };
+        let n_brakes = scenario
+            .drive
+            .segments
+            .iter()
+            .filter(|s| matches!(s, Segment::Brake(_)))
+            .count();
         let mut sim = FirmwareSim {
             scenario: scenario.clone(),
             info,
             plant,
-            driver: Driver::new(&scenario.drive, h),
+            driver: Driver::new(&scenario.drive, chunk as f64 * h),
             lane,
             lane_rng,
             lane_rad: 0.0,
@@ -110,11 +146,15 @@ impl<P: Plant> FirmwareSim<P> {
             batch_pos: 0,
             h_s: h,
             steps: 0,
+            chunk,
             trace_every,
             trace: Vec::with_capacity((est * TRACE_HZ * 1.2) as usize + 16),
             distance_m: 0.0,
             clearance_mm,
-            event_clearance: Vec::new(),
+            wear_every,
+            event_joints: Vec::with_capacity(n_brakes),
+            contact_prev: [false; 2],
+            error: None,
             last_cmd: DriveCmd::default(),
             t_cycle_end: None,
             t_limit_s: est * 2.0 + EXTRA_TIME_S,
@@ -125,7 +165,13 @@ impl<P: Plant> FirmwareSim<P> {
         };
         sim.lane_rad = sim.lane.step(&mut sim.lane_rng);
         sim.trace.push(sim.plant.steering_wheel_rad());
+        sim.contact_prev = sim.contact();
         Ok(sim)
+    }
+
+    /// The plant being driven.
+    pub fn plant(&self) -> &P {
+        &self.plant
     }
 
     /// The emulated bus (DBC, per-message counters, recorded values).
@@ -165,7 +211,8 @@ impl<P: Plant> FirmwareSim<P> {
         }
     }
 
-    /// One model step; fills the frame batch with whatever became due.
+    /// One control update: the driver's demand, `chunk` model steps with it held (one, unless
+    /// the scenario sets `control_period_s`), the bookkeeping, and the frames that became due.
     fn step(&mut self) {
         if !self.started {
             // Frames due at t = 0, before the first step.
@@ -184,8 +231,16 @@ impl<P: Plant> FirmwareSim<P> {
         let n_events = self.driver.events().len();
         let cmd = self.driver.update(t, v);
         if self.driver.events().len() > n_events {
-            self.event_clearance.push(self.clearance_mm);
+            self.event_joints.push(EventJoints {
+                clearance_start_mm: self.clearance_mm,
+                clearance_end_mm: self.clearance_mm,
+                odometer_km: self.odometer_km(),
+                steps: 0,
+                contact_steps: [0; 2],
+                impacts: [0; 2],
+            });
         }
+        let braking = self.driver.braking_event();
         let cmd = if cmd.done {
             let t_end = *self.t_cycle_end.get_or_insert(t);
             if t - t_end >= TAIL_S - 0.5 * self.h_s {
@@ -198,13 +253,27 @@ impl<P: Plant> FirmwareSim<P> {
         };
         self.last_cmd = cmd;
         self.plant.set_decel_demand(cmd.decel_demand_mps2);
-        self.plant.step();
-        self.steps += 1;
+        if self.chunk == 1 {
+            self.plant.step();
+        } else {
+            self.plant.advance(self.chunk);
+        }
+        self.steps += self.chunk;
         let v1 = self.plant.speed_mps();
-        self.distance_m += 0.5 * (v + v1) * self.h_s;
-        if self.scenario.clearance.growth_mm_per_km > 0.0 && self.steps.is_multiple_of(1000) {
+        self.distance_m += 0.5 * (v + v1) * self.chunk as f64 * self.h_s;
+        if self.wear_every > 0 && self.steps.is_multiple_of(self.wear_every) {
             self.apply_wear();
         }
+        let contact = self.contact();
+        if let Some(ev) = braking.and_then(|i| self.event_joints.get_mut(i)) {
+            ev.clearance_end_mm = self.clearance_mm;
+            ev.steps += 1;
+            for (j, (&now, &before)) in contact.iter().zip(&self.contact_prev).enumerate() {
+                ev.contact_steps[j] += u64::from(now);
+                ev.impacts[j] += u64::from(now && !before);
+            }
+        }
+        self.contact_prev = contact;
         if self.steps.is_multiple_of(self.trace_every) {
             self.lane_rad = self.lane.step(&mut self.lane_rng);
             self.trace.push(self.plant.steering_wheel_rad());
@@ -213,16 +282,43 @@ impl<P: Plant> FirmwareSim<P> {
         self.bus.poll(&s, &mut self.batch);
     }
 
+    /// Contact flags of the joints that have clearance (an ideal joint never reports contact).
+    fn contact(&self) -> [bool; 2] {
+        let c = self.plant.in_contact();
+        match self.scenario.clearance.mode {
+            ClearanceMode::Dual => c,
+            ClearanceMode::Single => [c[0], false],
+        }
+    }
+
+    fn odometer_km(&self) -> f64 {
+        self.scenario.clearance.odometer_km + self.distance_m * 1e-3
+    }
+
+    /// The wear law (`Clearance::at_distance_mm`) at the distance driven so far, into the
+    /// plant. Allocation-free unless the plant refuses the value, which the scenario's
+    /// validation rules out (every value stays within the scenario's accepted range).
     fn apply_wear(&mut self) {
-        let c = &self.scenario.clearance;
-        let grow = c.growth_mm_per_km * self.distance_m * 1e-3;
-        let left = c.left_mm + grow;
-        let right = match c.mode {
-            ClearanceMode::Dual => c.right_mm.unwrap_or(c.left_mm) + grow,
-            ClearanceMode::Single => 0.0,
-        };
-        self.clearance_mm = (left, right);
-        self.plant.set_clearance_m(left * 1e-3, right * 1e-3);
+        let (left, right) = self.scenario.clearance.at_distance_mm(self.distance_m);
+        if (left, right) == self.clearance_mm {
+            return; // at the cap, or standing still
+        }
+        match self.plant.set_clearance_m(left * 1e-3, right * 1e-3) {
+            Ok(()) => self.clearance_mm = (left, right),
+            Err(e) => {
+                self.error = Some(format!(
+                    "the plant refused the worn clearance {left}/{right} mm at t = {:.3} s: {e:#}",
+                    self.plant.t_s()
+                ));
+                self.done = true;
+            }
+        }
+    }
+
+    /// Why the run stopped early, if the plant refused a clearance set by the wear law. The
+    /// binary reports it as an error.
+    pub fn error(&self) -> Option<&str> {
+        self.error.as_deref()
     }
 
     /// Run to the end, discarding frames (the ground truth still fills).
@@ -234,22 +330,32 @@ impl<P: Plant> FirmwareSim<P> {
     /// far).
     pub fn ground_truth(&self) -> GroundTruth {
         let c = &self.scenario.clearance;
+        let start = c.at_distance_mm(0.0);
         let mut events = Vec::with_capacity(self.driver.events().len());
         for (i, ev) in self.driver.events().iter().enumerate() {
             if !ev.t_end_s.is_finite() {
                 continue; // unfinished (run truncated)
             }
             let window = [ev.t_start_s, ev.t_end_s + truth::WINDOW_TAIL_S];
-            let (cl, cr) = self
-                .event_clearance
-                .get(i)
-                .copied()
-                .unwrap_or(self.clearance_mm);
+            let j = self.event_joints.get(i).copied().unwrap_or(EventJoints {
+                clearance_start_mm: self.clearance_mm,
+                clearance_end_mm: self.clearance_mm,
+                odometer_km: self.odometer_km(),
+                steps: 0,
+                contact_steps: [0; 2],
+                impacts: [0; 2],
+            });
+            let frac = |n: u64| n as f64 / j.steps.max(1) as f64;
             events.push(truth::EventTruth {
                 index: i,
                 event: ev.clone(),
-                clearance_left_mm: cl,
-                clearance_right_mm: cr,
+                clearance_left_mm: j.clearance_start_mm.0,
+                clearance_right_mm: j.clearance_start_mm.1,
+                clearance_left_mm_end: j.clearance_end_mm.0,
+                clearance_right_mm_end: j.clearance_end_mm.1,
+                odometer_km: j.odometer_km,
+                contact_fraction: [frac(j.contact_steps[0]), frac(j.contact_steps[1])],
+                impacts: j.impacts,
                 window_s: window,
                 sw_amplitude_deg: truth::sw_amplitude_deg(&self.trace, TRACE_HZ, window),
             });
@@ -262,6 +368,8 @@ impl<P: Plant> FirmwareSim<P> {
                 file: self.info.scenario_file.clone(),
                 seed: self.scenario.seed,
                 vehicle_file: self.info.vehicle_file.clone(),
+                integrator: self.scenario.integrator,
+                step_s: self.scenario.step_s,
             },
             start_unix_s: self.scenario.start_unix_s,
             duration_s: self.plant.t_s(),
@@ -271,11 +379,14 @@ impl<P: Plant> FirmwareSim<P> {
                     ClearanceMode::Dual => "dual".into(),
                     ClearanceMode::Single => "single".into(),
                 },
-                left_mm_start: c.left_mm,
-                right_mm_start: self.scenario.right_clearance_mm(),
-                growth_mm_per_km: c.growth_mm_per_km,
+                left_mm_start: start.0,
+                right_mm_start: start.1,
+                wear_mm_per_1000km: c.wear_mm_per_1000km,
+                max_mm: c.max_mm.unwrap_or(crate::scenario::MAX_CLEARANCE_MM),
                 left_mm_end: self.clearance_mm.0,
                 right_mm_end: self.clearance_mm.1,
+                odometer_km_start: c.odometer_km,
+                odometer_km_end: self.odometer_km(),
             },
             events,
             sensors: truth::SensorTruth {

@@ -1,12 +1,14 @@
 //! The ground-truth sidecar (JSON) written next to every firmware-sim log: what was really
 //! simulated, so tests and accuracy figures can compare the monitor's conclusions with it.
 //!
-//! It holds the scenario identity (name, file, seed), the true clearance at the start, at the end
-//! and at each braking event (wear grows it with distance), every braking event (onset, end,
+//! It holds the scenario identity (name, file, seed), the true clearance of each joint at the
+//! start, at the end and during each braking event (wear grows it with distance; the odometer
+//! reading goes with each value), every braking event (onset, end,
 //! initial speed, plateau deceleration) with its true steering-wheel shimmy amplitude (MODEL.md
 //! §11: the peak of the 3–25 Hz, 4th-order zero-phase band-passed δ_sw over
 //! `[t_start, t_end + 0.3 s]`, taken from the model's continuous output at 1 kHz, not from the
-//! quantised sensor), and per-message frame counts.
+//! quantised sensor) and its per-joint contact statistics (MODEL.md §4), and per-message frame
+//! counts.
 //!
 //! Not here: running the simulation. All times are seconds since the start of the log; add
 //! `start_unix_s` for the frame timestamps.
@@ -50,17 +52,29 @@ pub struct ScenarioId {
     pub file: Option<String>,
     pub seed: u64,
     pub vehicle_file: Option<String>,
+    /// The model's integration scheme and step (s), which the log's exact bytes depend on.
+    pub integrator: shimmy::model::Integrator,
+    pub step_s: f64,
 }
 
+/// The true clearances (mm) of the run. With `single`, the right joint is ideal and reported
+/// as 0. Wear (`wear_mm_per_1000km` > 0) grows each worn joint linearly with distance up to
+/// `max_mm`; the simulation applies the law every [`crate::sim::WEAR_UPDATE_S`] of simulated
+/// time.
 #[derive(Clone, Debug, Serialize, PartialEq)]
 pub struct ClearanceTruth {
     /// `dual` or `single`.
     pub mode: String,
     pub left_mm_start: f64,
     pub right_mm_start: f64,
-    pub growth_mm_per_km: f64,
+    pub wear_mm_per_1000km: f64,
+    /// Wear cap (mm).
+    pub max_mm: f64,
     pub left_mm_end: f64,
     pub right_mm_end: f64,
+    /// Odometer at the start and at the end of the run (km).
+    pub odometer_km_start: f64,
+    pub odometer_km_end: f64,
 }
 
 #[derive(Clone, Debug, Serialize, PartialEq)]
@@ -68,9 +82,21 @@ pub struct EventTruth {
     pub index: usize,
     #[serde(flatten)]
     pub event: BrakeEvent,
-    /// Clearances when the event began (mm).
+    /// Clearances in force at brake onset (mm).
     pub clearance_left_mm: f64,
     pub clearance_right_mm: f64,
+    /// Clearances in force at the end of the deceleration, `t_end_s` (mm); equal to the onset
+    /// values without wear.
+    pub clearance_left_mm_end: f64,
+    pub clearance_right_mm_end: f64,
+    /// Odometer at brake onset (km).
+    pub odometer_km: f64,
+    /// Per joint (left, right): share of the model steps from onset to `t_end_s` with the pin
+    /// in contact with its bushing (MODEL.md §4), and the number of impacts (free flight to
+    /// contact). Sampled at every control update: every model step unless the scenario sets
+    /// `control_period_s`. An ideal joint reports 0 and 0.
+    pub contact_fraction: [f64; 2],
+    pub impacts: [u64; 2],
     /// Analysis window `[t_start, t_end + 0.3]` (s).
     pub window_s: [f64; 2],
     /// MODEL.md §11 steering-wheel amplitude from the model's continuous δ_sw (deg).
