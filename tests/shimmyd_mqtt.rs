@@ -48,6 +48,14 @@ fn mosquitto() -> Option<PathBuf> {
     None
 }
 
+/// The tests run one at a time: run in parallel on a loaded machine, a subscriber's first
+/// connection to a just-started broker was seen to be dropped (1 run in 5), while serially
+/// 6 of 6 runs passed.
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0")
         .unwrap()
@@ -327,17 +335,20 @@ fn replay_against_a_running_broker(qos: u8) {
 
 #[test]
 fn every_alert_and_event_reaches_a_running_broker() {
+    let _one_at_a_time = serial();
     replay_against_a_running_broker(1);
 }
 
 #[test]
 fn qos_0_and_2_deliver_too() {
+    let _one_at_a_time = serial();
     replay_against_a_running_broker(0);
     replay_against_a_running_broker(2);
 }
 
 #[test]
 fn messages_wait_for_a_broker_that_is_down_and_arrive_once_in_order() {
+    let _one_at_a_time = serial();
     let Some(bin) = mosquitto() else { return };
     let dir = tempfile::tempdir().unwrap();
     let bdir = dir.path().join("broker");
