@@ -64,11 +64,18 @@ impl PureSlip {
     #[inline(always)]
     pub fn at_load(fz_n: f64, mu: f64) -> Self {
         let fz = fz_n * 1e-3;
+        Self::with_fy_shape(fz, mu, (1.82 * (0.208 * fz).atan()).sin())
+    }
+
+    /// The §5.3 coefficients at load `fz` (kN), given sin(1.82·atan(0.208·fz)) of Fy0's BCD
+    /// (computed by libm or read from the tables).
+    #[inline(always)]
+    fn with_fy_shape(fz: f64, mu: f64, fy_bcd_shape: f64) -> Self {
         let fz2 = fz * fz;
         let fy = Curve::new(
             1.30,
             mu * (-22.1 * fz2 + 1011.0 * fz),
-            1078.0 * (1.82 * (0.208 * fz).atan()).sin(),
+            1078.0 * fy_bcd_shape,
             -0.354 * fz + 0.707,
         );
         let fx = Curve::new(
@@ -290,26 +297,7 @@ impl PureSlip {
     #[inline(always)]
     pub fn at_load_tab(fz_n: f64, mu: f64, tab: &MfTables) -> Self {
         let fz = fz_n * 1e-3;
-        let fz2 = fz * fz;
-        let fy = Curve::new(
-            1.30,
-            mu * (-22.1 * fz2 + 1011.0 * fz),
-            1078.0 * tab.sin_c_atan(3, 0.208 * fz).0,
-            -0.354 * fz + 0.707,
-        );
-        let fx = Curve::new(
-            1.65,
-            mu * (-21.3 * fz2 + 1144.0 * fz),
-            (49.6 * fz2 + 226.0 * fz) * (-0.069 * fz).exp(),
-            -0.006 * fz2 + 0.056 * fz + 0.486,
-        );
-        let mz = Curve::new(
-            2.40,
-            2.72 * fz2 + 2.28 * fz,
-            (1.86 * fz2 + 2.73 * fz) * (-0.110 * fz).exp(),
-            -0.070 * fz2 + 0.643 * fz - 4.04,
-        );
-        Self { fy, fx, mz }
+        Self::with_fy_shape(fz, mu, tab.sin_c_atan(3, 0.208 * fz).0)
     }
 
     /// [`Self::invert_fx`] (warm start, stop at `tol`) through the tables.
