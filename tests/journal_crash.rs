@@ -26,6 +26,7 @@ fn sigkill_at_random_moments_loses_no_acknowledged_record() {
             .spawn()
             .expect("spawn shimmyd");
         let stdout = child.stdout.take().unwrap();
+        let (started_tx, started_rx) = std::sync::mpsc::channel();
         let reader = std::thread::spawn(move || {
             let mut acked = 0u64;
             let mut recovered = String::new();
@@ -35,11 +36,16 @@ fn sigkill_at_random_moments_loses_no_acknowledged_record() {
                     acked = n.parse().unwrap();
                 } else if let Some(r) = line.strip_prefix("recovered ") {
                     recovered = r.to_string();
+                    let _ = started_tx.send(());
                 }
             }
             (acked, recovered)
         });
-        std::thread::sleep(Duration::from_millis(rng.random_range(20..150)));
+        // The kill lands at a random moment of the writing, counted from the end of the
+        // writer's recovery (on a loaded machine starting the process alone can take longer
+        // than the shortest delay).
+        let _ = started_rx.recv_timeout(Duration::from_secs(30));
+        std::thread::sleep(Duration::from_millis(rng.random_range(1..130)));
         child.kill().expect("SIGKILL"); // Child::kill sends SIGKILL on Unix.
         let status = child.wait().unwrap();
         assert!(

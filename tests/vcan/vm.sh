@@ -245,7 +245,8 @@ export PATH=/bin HOME=/tmp
 mount -t proc proc /proc
 mount -t sysfs sys /sys
 mount -t devtmpfs dev /dev
-mount -t tmpfs tmp /tmp
+# /tmp stays on the (RAM-backed, writable) initramfs root: a tmpfs mounted over it would hide
+# the files copied to the checkout's path when the checkout itself lives under /tmp.
 . /env
 echo "SHIMMY-VM-BOOTED uptime_s=$(cut -d' ' -f1 /proc/uptime) kernel=$(uname -r)"
 for m in can can-raw can-dev vcan; do
