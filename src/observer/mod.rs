@@ -183,7 +183,8 @@ impl Observer {
 
     /// The features of a finished event over its braking window plus the configured tail
     /// (MODEL.md §11). Takes the fields it needs, not `self`, because `fin` borrows the detector.
-    fn measure(
+    /// The table builder (`simulate`) measures model events with this same function.
+    pub(crate) fn measure(
         extractor: &mut Extractor,
         cfg: &ObserverConfig,
         fin: crate::events::Finished<'_>,

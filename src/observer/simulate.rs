@@ -210,23 +210,10 @@ pub fn simulate_event(
     let speed_period_ns = 20_000_000i64;
     let mut next_speed_ns = 5_000_000i64;
     let mut found = None;
-    let mut feed =
-        |s: Sample, det: &mut Detector| -> Option<(crate::events::EventRecord, Option<Features>)> {
-            let fin = det.push(&s)?;
-            let r = fin.record;
-            let t0 = (r.t_start_s * 1e9).round() as i64;
-            let t1 = ((r.t_end_s + cfg.events.tail_s) * 1e9).round() as i64;
-            let f = ex
-                .extract(
-                    fin.samples,
-                    t0,
-                    t1,
-                    cfg.features.sensor,
-                    r.quality.quant_step_deg,
-                )
-                .ok();
-            Some((r, f))
-        };
+    let mut feed = |s: Sample, det: &mut Detector| {
+        det.push(&s)
+            .map(|fin| super::Observer::measure(&mut ex, cfg, fin))
+    };
     let brake_at = |t_ns: i64| {
         let i = ((t_ns as f64 * 1e-9) * fs_true).round() as usize;
         pedal[i.min(pedal.len() - 1)]
@@ -264,19 +251,7 @@ pub fn simulate_event(
             let fin = det
                 .flush()
                 .context("the detector found no braking event in the simulated run")?;
-            let r = fin.record;
-            let t0 = (r.t_start_s * 1e9).round() as i64;
-            let t1 = ((r.t_end_s + cfg.events.tail_s) * 1e9).round() as i64;
-            let f = ex
-                .extract(
-                    fin.samples,
-                    t0,
-                    t1,
-                    cfg.features.sensor,
-                    r.quality.quant_step_deg,
-                )
-                .ok();
-            (r, f)
+            super::Observer::measure(&mut ex, cfg, fin)
         }
     };
     let features = feats.context("too few steering samples in the simulated event")?;
