@@ -115,21 +115,11 @@ impl PureSlip {
             return 0.0;
         }
         // x in percent.
-        let mut x = match kappa0 {
+        let x0 = match kappa0 {
             Some(k) => (k.abs() * 100.0).max(0.0),
             None => target / self.fx.slope0(),
         };
-        for _ in 0..max_iter {
-            let (y, dy) = self.fx.eval_d(x);
-            if dy <= 0.0 {
-                break;
-            }
-            let step = (y - target) / dy;
-            x = (x - step).max(0.0);
-            if step.abs() < tol {
-                break;
-            }
-        }
+        let x = newton_fx(target, x0, max_iter, tol, |x| self.fx.eval_d(x));
         (x * 0.01).copysign(force_n)
     }
 
@@ -307,18 +297,8 @@ impl PureSlip {
         if target <= 0.0 {
             return 0.0;
         }
-        let mut x = (kappa0.abs() * 100.0).max(0.0);
-        for _ in 0..8 {
-            let (y, dy) = tab.curve_d(&self.fx, 1, x);
-            if dy <= 0.0 {
-                break;
-            }
-            let step = (y - target) / dy;
-            x = (x - step).max(0.0);
-            if step.abs() < tol {
-                break;
-            }
-        }
+        let x0 = (kappa0.abs() * 100.0).max(0.0);
+        let x = newton_fx(target, x0, 8, tol, |x| tab.curve_d(&self.fx, 1, x));
         (x * 0.01).copysign(force_n)
     }
 
@@ -342,6 +322,32 @@ impl PureSlip {
             tab.curve(&self.mz, 2, a_deg) * alpha_t * inv,
         )
     }
+}
+
+/// Newton's method for Fx0(x) = `target` (x = slip in percent, kept ≥ 0) from `x0`, with
+/// `eval_d` giving Fx0 and its slope: at most `max_iter` steps, stopping when the slope is not
+/// positive or the update is below `tol` (MODEL.md §5.3's braking-slip inversion, for both the
+/// libm and the tabulated curve).
+#[inline(always)]
+fn newton_fx(
+    target: f64,
+    mut x: f64,
+    max_iter: u32,
+    tol: f64,
+    eval_d: impl Fn(f64) -> (f64, f64),
+) -> f64 {
+    for _ in 0..max_iter {
+        let (y, dy) = eval_d(x);
+        if dy <= 0.0 {
+            break;
+        }
+        let step = (y - target) / dy;
+        x = (x - step).max(0.0);
+        if step.abs() < tol {
+            break;
+        }
+    }
+    x
 }
 
 #[cfg(test)]
