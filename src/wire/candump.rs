@@ -843,6 +843,31 @@ pub fn write_frame<W: io::Write>(w: &mut W, f: &Frame) -> io::Result<()> {
 mod tests {
     use super::*;
 
+    /// Every seed line, and each line one edit away from a seed: every byte replaced by each
+    /// byte of `subst`, every byte removed and, with `duplicate`, every byte doubled.
+    fn one_byte_variants(seeds: &[&[u8]], subst: &[u8], duplicate: bool) -> Vec<Vec<u8>> {
+        let mut variants = Vec::new();
+        for seed in seeds {
+            variants.push(seed.to_vec());
+            for i in 0..seed.len() {
+                for &b in subst {
+                    let mut v = seed.to_vec();
+                    v[i] = b;
+                    variants.push(v);
+                }
+                let mut v = seed.to_vec();
+                v.remove(i);
+                variants.push(v);
+                if duplicate {
+                    let mut v = seed.to_vec();
+                    v.insert(i, seed[i]);
+                    variants.push(v);
+                }
+            }
+        }
+        variants
+    }
+
     fn frame(line: &str) -> Frame {
         match parse_line(line.as_bytes()) {
             Ok(Parsed::Frame(f)) => f,
@@ -1055,24 +1080,7 @@ mod tests {
             f.set_iface("can0");
             f
         }];
-        let mut variants: Vec<Vec<u8>> = Vec::new();
-        let subst = b"0189aAfFgG#._ \t\r\n()R-\xff\xc3";
-        for seed in seeds {
-            variants.push(seed.to_vec());
-            for i in 0..seed.len() {
-                for &b in subst {
-                    let mut v = seed.to_vec();
-                    v[i] = b;
-                    variants.push(v);
-                }
-                let mut v = seed.to_vec();
-                v.remove(i);
-                variants.push(v);
-                let mut v = seed.to_vec();
-                v.insert(i, seed[i]);
-                variants.push(v);
-            }
-        }
+        let variants = one_byte_variants(&seeds, b"0189aAfFgG#._ \t\r\n()R-\xff\xc3", true);
         let mut accepted = 0;
         for v in &variants {
             for prior in &priors {
@@ -1108,21 +1116,7 @@ mod tests {
             b"(12.000000) can0 00000123#de",
             b"(12.000000) can0 123#de.ad",
         ];
-        let subst = b"0189aAfFgG#._ \t\r\n()R-\xff";
-        let mut variants: Vec<Vec<u8>> = Vec::new();
-        for seed in seeds {
-            variants.push(seed.to_vec());
-            for i in 0..seed.len() {
-                for &b in subst {
-                    let mut v = seed.to_vec();
-                    v[i] = b;
-                    variants.push(v);
-                }
-                let mut v = seed.to_vec();
-                v.remove(i);
-                variants.push(v);
-            }
-        }
+        let variants = one_byte_variants(&seeds, b"0189aAfFgG#._ \t\r\n()R-\xff", false);
         let mut prior = Frame::classic(1, 1, false, &[1; 8]).unwrap();
         prior.set_iface("can0");
         let mut taken = 0;
