@@ -10,13 +10,7 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use shimmy::daemon::run::{run, Options};
 
 fn bench(c: &mut Criterion) {
-    let Some(log) =
-        shimmy::shared_data::require_file("logs/comma2k19-rav4/rav4_2017_seg40_bus0.log")
-    else {
-        return;
-    };
-    let Some(dbc) = shimmy::shared_data::require_file("dbc/opendbc/toyota_new_mc_pt_generated.dbc")
-    else {
+    let Some((log, dbc)) = shimmy::shared_data::require_rav4() else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();

@@ -55,3 +55,14 @@ pub fn require_file(rel: &str) -> Option<PathBuf> {
     eprintln!("SKIPPED: shared test file missing: {}", p.display());
     None
 }
+
+/// The real RAV4 drive (comma2k19, candump -L, bus 0) under the data directory.
+pub const RAV4_LOG: &str = "logs/comma2k19-rav4/rav4_2017_seg40_bus0.log";
+/// The opendbc DBC that decodes [`RAV4_LOG`].
+pub const RAV4_DBC: &str = "dbc/opendbc/toyota_new_mc_pt_generated.dbc";
+
+/// The RAV4 log and its DBC, as (log, dbc) (see [`require`] for what happens when either is
+/// missing).
+pub fn require_rav4() -> Option<(PathBuf, PathBuf)> {
+    Some((require_file(RAV4_LOG)?, require_file(RAV4_DBC)?))
+}

@@ -12,13 +12,7 @@ fn root() -> PathBuf {
 
 #[test]
 fn real_rav4_log_reports_no_events_and_no_alerts() {
-    let Some(log) =
-        shimmy::shared_data::require_file("logs/comma2k19-rav4/rav4_2017_seg40_bus0.log")
-    else {
-        return;
-    };
-    let Some(dbc) = shimmy::shared_data::require_file("dbc/opendbc/toyota_new_mc_pt_generated.dbc")
-    else {
+    let Some((log, dbc)) = shimmy::shared_data::require_rav4() else {
         return;
     };
     let (report, stats) = estimate_files(

@@ -229,13 +229,7 @@ fn shimmy_alert_0p3mm_raised() {
 /// stderr and in the journal's stop record.
 #[test]
 fn rav4_log_raises_nothing_and_reports_counters() {
-    let Some(log) =
-        shimmy::shared_data::require_file("logs/comma2k19-rav4/rav4_2017_seg40_bus0.log")
-    else {
-        return;
-    };
-    let Some(dbc) = shimmy::shared_data::require_file("dbc/opendbc/toyota_new_mc_pt_generated.dbc")
-    else {
+    let Some((log, dbc)) = shimmy::shared_data::require_rav4() else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
