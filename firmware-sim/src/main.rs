@@ -38,11 +38,11 @@ use firmware_sim::{FirmwareSim, RunInfo, Scenario};
 /// Scenario file (every table rejects unknown keys; units are in the key names):
 ///   seed = 20                      name, description, vehicle = "file.toml" (VehicleParams,
 ///                                  relative to the scenario; default MODEL.md §9), step_s
-///                                  (1e-4), integrator ("rk4_warm_slip"; the model's
+///                                  (1e-4), integrator ("rk4_adaptive"; the model's
 ///                                  schemes, see `shimmy simulate --help`),
-///                                  control_period_s (= step_s: driver demand, ECU sampling
-///                                  and contact tally every model step; e.g. 1e-3 holds the
-///                                  demand over 10 steps), start_unix_s are optional
+///                                  control_period_s (1e-3, the truth trace interval: driver
+///                                  demand, ECU sampling and contact tally every 1 ms; = step_s
+///                                  updates every model step), start_unix_s are optional
 ///   [clearance]  mode = "dual" (both joints worn) | "single" (left worn, right ideal);
 ///                left_mm (> 0, at the start of the run; both joints when right_mm is absent);
 ///                right_mm (dual only: unequal wear); wear: wear_mm_per_1000km (0; growth of

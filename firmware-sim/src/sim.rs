@@ -369,6 +369,7 @@ impl<P: Plant> FirmwareSim<P> {
                 seed: self.scenario.seed,
                 vehicle_file: self.info.vehicle_file.clone(),
                 integrator: self.scenario.integrator,
+                control_period_s: self.scenario.control_steps() as f64 * self.scenario.step_s,
                 step_s: self.scenario.step_s,
             },
             start_unix_s: self.scenario.start_unix_s,

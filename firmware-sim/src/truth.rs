@@ -52,9 +52,11 @@ pub struct ScenarioId {
     pub file: Option<String>,
     pub seed: u64,
     pub vehicle_file: Option<String>,
-    /// The model's integration scheme and step (s), which the log's exact bytes depend on.
+    /// The model's integration scheme and step (s), and the control period (s, driver demand
+    /// and ECU sampling), which the log's exact bytes depend on.
     pub integrator: shimmy::model::Integrator,
     pub step_s: f64,
+    pub control_period_s: f64,
 }
 
 /// The true clearances (mm) of the run. With `single`, the right joint is ideal and reported
@@ -93,8 +95,10 @@ pub struct EventTruth {
     pub odometer_km: f64,
     /// Per joint (left, right): share of the model steps from onset to `t_end_s` with the pin
     /// in contact with its bushing (MODEL.md §4), and the number of impacts (free flight to
-    /// contact). Sampled at every control update: every model step unless the scenario sets
-    /// `control_period_s`. An ideal joint reports 0 and 0.
+    /// contact). Sampled at every control update (`control_period_s`, 1 ms by default; a
+    /// contact that starts and ends between two updates is not seen, so with the default
+    /// these are lower bounds; `control_period_s = step_s` counts every model step). An ideal
+    /// joint reports 0 and 0.
     pub contact_fraction: [f64; 2],
     pub impacts: [u64; 2],
     /// Analysis window `[t_start, t_end + 0.3]` (s).

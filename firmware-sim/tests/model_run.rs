@@ -82,22 +82,20 @@ fn bus_follows_the_model() {
 
 #[test]
 fn control_period_coarsens_only_the_driver_and_sampling() {
-    // One model step per update is the reference: byte-identical to leaving the key out.
+    // The default is the 1 ms trace interval: byte-identical to writing it out.
+    let with = |extra: &str| SHORT.replace("seed = 11", &format!("seed = 11\n{extra}"));
     let (a, ta) = run(SHORT);
-    let with =
-        |cp: &str| SHORT.replace("seed = 11", &format!("seed = 11\ncontrol_period_s = {cp}"));
-    let (b, tb) = run(&with("1e-4"));
-    assert!(
-        a == b && ta == tb,
-        "control_period_s = step_s changed the run"
-    );
-    // 1 ms updates (10 model steps each, demand held): deterministic, and the same drive.
-    let (c, tc) = run(&with("1e-3"));
-    let (d, _) = run(&with("1e-3"));
-    assert!(c == d, "same seed, different logs with control_period_s");
-    assert!(a != c);
+    let (b, tb) = run(&with("control_period_s = 1e-3"));
+    assert!(a == b && ta == tb, "the default is not control_period_s = 1e-3");
+    // Every model step (the reference bookkeeping): deterministic, and the same drive.
+    let (c, tc) = run(&with("control_period_s = 1e-4"));
+    let (d, _) = run(&with("control_period_s = 1e-4"));
+    assert!(c == d, "same seed, different logs with control_period_s = step_s");
+    assert!(a != c, "control_period_s was not used");
     let truth = |t: &str| -> serde_json::Value { serde_json::from_str(t).unwrap() };
     let (ta, tc) = (truth(&ta), truth(&tc));
+    assert_eq!(ta["scenario"]["control_period_s"], 1e-3);
+    assert_eq!(tc["scenario"]["control_period_s"], 1e-4);
     assert_eq!(ta["frames_sent"], tc["frames_sent"]);
     let (ea, ec) = (&ta["events"][0], &tc["events"][0]);
     for k in ["t_start_s", "t_end_s"] {
@@ -113,12 +111,15 @@ fn control_period_coarsens_only_the_driver_and_sampling() {
 }
 
 #[test]
-fn faster_integrators_are_deterministic_and_drive_the_same_cycle() {
-    let (a, ta) = run(SHORT);
+fn every_integrator_is_deterministic_and_drives_the_same_cycle() {
+    // The reference: MODEL.md §10's RK4 (warm-started slip) with per-step bookkeeping.
+    let reference = "integrator = \"rk4_warm_slip\"\ncontrol_period_s = 1e-4";
+    let (a, ta) = run(&SHORT.replace("seed = 11", &format!("seed = 11\n{reference}")));
     let ta: serde_json::Value = serde_json::from_str(&ta).unwrap();
     for extra in [
-        "integrator = \"rk4_multirate\"",
-        "integrator = \"rk4_adaptive\"\ncontrol_period_s = 1e-3",
+        "integrator = \"rk4_multirate\"\ncontrol_period_s = 1e-4",
+        "integrator = \"rk4_adaptive\"",
+        "integrator = \"rk4_warm_slip\"",
     ] {
         let text = SHORT.replace("seed = 11", &format!("seed = 11\n{extra}"));
         let (b, tb) = run(&text);
