@@ -34,6 +34,7 @@ fn table() -> ResponseTable {
                         mean: [r, r + 0.8],
                         std: [0.15, 0.15],
                         corr: 0.7,
+                        cruise: [r - 0.3, 0.2],
                     });
                 }
             }
@@ -48,6 +49,7 @@ fn table() -> ResponseTable {
         decel_g,
         vehicles,
         seeds: 1,
+        cruise: true,
         cells,
         amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
         provenance: String::new(),
@@ -107,7 +109,15 @@ fn bench(c: &mut Criterion) {
         |b| {
             b.iter(|| {
                 odo += 1000.0;
-                est.update(&t, black_box(0.05), black_box(0.15), 57.0, 0.45, odo);
+                est.update_event(
+                    &t,
+                    black_box(0.05),
+                    black_box(0.15),
+                    Some(0.03),
+                    57.0,
+                    0.45,
+                    odo,
+                );
                 black_box(est.quantile_mm(0.5))
             })
         },

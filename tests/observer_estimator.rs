@@ -7,7 +7,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use shimmy::observer::estimator::{Estimator, EstimatorConfig};
 use shimmy::observer::sensor::SensorModel;
-use shimmy::observer::table::{Cell, ResponseTable, FORMAT};
+use shimmy::observer::table::{Cell, ResponseTable, FORMAT_V2};
 use shimmy::observer::ObserverConfig;
 
 /// A law with a floor like MODEL.md §13's steering wheel: rms = sqrt(0.04² + (0.25·c·s)²) with
@@ -36,12 +36,14 @@ fn table() -> ResponseTable {
                     mean: z,
                     std: [SPREAD, SPREAD],
                     corr: 0.8,
+                    cruise: [0.0, 0.0],
                 });
             }
         }
     }
     let t = ResponseTable {
-        format: FORMAT.into(),
+        // Synthetic braking features only: the v2 layout (no cruise statistic).
+        format: FORMAT_V2.into(),
         vehicle_hash: "0123456789abcdef".into(),
         sensor: SensorModel::default(),
         clearance_mm,
@@ -49,6 +51,7 @@ fn table() -> ResponseTable {
         decel_g,
         vehicles: 1,
         seeds: 1,
+        cruise: false,
         cells,
         amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
         provenance: "synthetic".into(),
@@ -216,12 +219,14 @@ fn nuisance_table(deltas: &[f64], pooled_spread: Option<f64>) -> ResponseTable {
                     mean: shimmy::observer::features::z(a.exp(), b.exp()),
                     std: [s, s],
                     corr: 0.8,
+                    cruise: [0.0, 0.0],
                 });
             }
         }
     }
     let t = ResponseTable {
-        format: FORMAT.into(),
+        // Synthetic braking features only: the v2 layout (no cruise statistic).
+        format: FORMAT_V2.into(),
         vehicle_hash: "0123456789abcdef".into(),
         sensor: SensorModel::default(),
         clearance_mm,
@@ -229,6 +234,7 @@ fn nuisance_table(deltas: &[f64], pooled_spread: Option<f64>) -> ResponseTable {
         decel_g,
         vehicles: deltas.len() as u32,
         seeds: 1,
+        cruise: false,
         cells,
         amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
         provenance: "synthetic".into(),
@@ -331,4 +337,77 @@ fn an_old_single_distribution_table_still_loads() {
     assert!(t.validate().is_ok());
     t.vehicles = 2;
     assert!(t.validate().is_err(), "v1 tables have one nuisance set");
+}
+
+/// Two nuisance vehicles that the braking features cannot tell apart: vehicle 0 (a large
+/// unbalance) shakes at a new joint's clearance as much as vehicle 1 does with worn joints.
+/// Before the brake, vehicle 0's steering is busy at every clearance, vehicle 1's goes quiet
+/// as the free play grows. A v3 table with the cruise statistic must then name the worn joint;
+/// the same table without it must stay undecided.
+#[test]
+fn the_cruise_statistic_separates_what_the_braking_amplitude_confuses() {
+    use shimmy::observer::table::FORMAT;
+    let clearance_mm: Vec<f64> = (0..8)
+        .map(|i| 0.03 * (0.4f64 / 0.03).powf(i as f64 / 7.0))
+        .collect();
+    let speed_kmh = vec![40.0, 80.0];
+    let decel_g = vec![0.5];
+    // Braking RMS (deg): vehicle 0 at c equals vehicle 1 at 4c.
+    let brake = |c: f64, m: usize| 0.03 + 0.4 * if m == 0 { 4.0 * c } else { c };
+    let cruise = |c: f64, m: usize| if m == 0 { 0.15 } else { 0.15 / (1.0 + 40.0 * c) };
+    let mut cells = Vec::new();
+    for &c in &clearance_mm {
+        for m in 0..2 {
+            for _ in &speed_kmh {
+                let z = shimmy::observer::features::z(brake(c, m), 3.0 * brake(c, m));
+                cells.push(Cell {
+                    mean: z,
+                    std: [0.15, 0.15],
+                    corr: 0.8,
+                    cruise: [shimmy::observer::features::z_cruise(cruise(c, m)), 0.15],
+                });
+            }
+        }
+    }
+    let t = ResponseTable {
+        format: FORMAT.into(),
+        vehicle_hash: "0123456789abcdef".into(),
+        sensor: SensorModel::default(),
+        clearance_mm,
+        speed_kmh,
+        decel_g,
+        vehicles: 2,
+        seeds: 1,
+        cruise: true,
+        cells,
+        amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
+        provenance: "synthetic".into(),
+    };
+    t.validate().unwrap();
+    // Vehicle 1 with 0.25 mm joints: braking RMS 0.13 deg, cruise 0.014 deg (noise-free).
+    let run = |use_cruise: bool| {
+        let cfg = EstimatorConfig {
+            cruise: use_cruise,
+            std_inflation: 1.0,
+            ..EstimatorConfig::default()
+        };
+        let mut e = Estimator::new(&t, cfg).unwrap();
+        for k in 0..20 {
+            let r = brake(0.25, 1);
+            e.update_event(&t, r, 3.0 * r, Some(cruise(0.25, 1)), 60.0, 0.5, k as f64);
+        }
+        (e.prob_above(0.1), e.summary())
+    };
+    let (p_with, s_with) = run(true);
+    let (p_without, _) = run(false);
+    assert!(p_with > 0.99, "with the cruise statistic: P(c > 0.1) = {p_with}, {s_with:?}");
+    assert!(
+        (0.15..0.4).contains(&s_with.median_mm),
+        "median {} for a true 0.25 mm",
+        s_with.median_mm
+    );
+    assert!(
+        p_without < 0.9,
+        "without it the large-unbalance explanation must stay open: P = {p_without}"
+    );
 }

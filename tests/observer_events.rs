@@ -10,7 +10,8 @@ const G: f64 = 9.80665;
 
 /// A synthetic drive: cruise at `v0_kmh` for 3 s, brake at `decel_g` (0.3 s ramp) until stop or
 /// `brake_s`, then 2 s more. Steering at 100 Hz: `steer_offset_deg` + a 6 Hz sine of
-/// `amp_deg` during braking, quantised to `step_deg` after a sub-step offset; speed at 50 Hz;
+/// `amp_deg` during braking (and an 8 Hz sine of `cruise_amp_deg` before it), quantised to
+/// `step_deg` after a sub-step offset; speed at 50 Hz;
 /// acceleration at 50 Hz when `with_accel`. `drop` is the probability a steering frame is lost.
 #[derive(Clone)]
 struct Drive {
@@ -18,6 +19,7 @@ struct Drive {
     decel_g: f64,
     brake_s: f64,
     amp_deg: f64,
+    cruise_amp_deg: f64,
     steer_offset_deg: f64,
     step_deg: f64,
     with_accel: bool,
@@ -32,6 +34,7 @@ impl Default for Drive {
             decel_g: 0.5,
             brake_s: 100.0,
             amp_deg: 0.3,
+            cruise_amp_deg: 0.0,
             steer_offset_deg: 1.0,
             step_deg: 0.1,
             with_accel: false,
@@ -76,6 +79,8 @@ fn samples(d: &Drive) -> Vec<Sample> {
         if k % 10 == 0 && rng.random::<f64>() >= d.drop {
             let shimmy = if braking_cmd && v > 0.0 {
                 d.amp_deg * (2.0 * std::f64::consts::PI * 6.0 * t).sin()
+            } else if t < T_BRAKE {
+                d.cruise_amp_deg * (2.0 * std::f64::consts::PI * 8.0 * t).sin()
             } else {
                 0.0
             };
@@ -265,20 +270,24 @@ fn an_event_longer_than_the_ring_is_closed_and_flagged_truncated() {
     assert_eq!(ev[0].unused_reason, Some(Unused::Truncated));
 }
 
-/// Steering samples of one finished event, for the feature tests.
-fn event_samples(d: &Drive) -> (Vec<(i64, f64)>, EventRecord) {
-    let mut det = Detector::new(EventConfig::default());
-    for s in samples(d) {
-        if let Some(f) = det.push(&s) {
-            return (f.samples.to_vec(), f.record);
-        }
-    }
-    let f = det.flush().expect("an event");
-    (f.samples.to_vec(), f.record)
-}
 
 fn features(d: &Drive) -> shimmy::observer::features::Features {
-    let (s, r) = event_samples(d);
+    features_with(d, EventConfig::default())
+}
+
+fn features_with(d: &Drive, cfg: EventConfig) -> shimmy::observer::features::Features {
+    let mut det = Detector::new(cfg);
+    let mut got = None;
+    for smp in samples(d) {
+        if let Some(f) = det.push(&smp) {
+            got = Some((f.samples.to_vec(), f.record));
+            break;
+        }
+    }
+    let (s, r) = got.unwrap_or_else(|| {
+        let f = det.flush().expect("an event");
+        (f.samples.to_vec(), f.record)
+    });
     let t0 = (r.t_start_s * 1e9) as i64;
     let t1 = ((r.t_end_s + 0.3) * 1e9) as i64;
     Extractor::new()
@@ -338,4 +347,38 @@ fn no_shimmy_gives_only_the_quantisation_floor() {
     });
     assert!(f.peak_deg < 0.05, "{f:?}");
     assert!(f.excess_rms_deg < 0.01, "{f:?}");
+}
+
+#[test]
+fn the_cruise_feature_measures_the_steering_before_the_brake_only() {
+    // Busy before the brake, quiet during it (tight joints, large unbalance) ...
+    let f = features(&Drive {
+        amp_deg: 0.0,
+        cruise_amp_deg: 0.5,
+        ..Drive::default()
+    });
+    let want = 0.5 / 2f64.sqrt();
+    let cruise = f.cruise_rms_deg.expect("2 s pre-roll holds a cruise window");
+    assert!((cruise - want).abs() < 0.1 * want, "cruise rms {cruise}, want {want}");
+    assert!(f.rms_deg < 0.1 * want, "braking window leaks the cruise: {f:?}");
+    // ... and the other way round (a brake-induced rattle on worn joints).
+    let g = features(&Drive {
+        amp_deg: 0.5,
+        cruise_amp_deg: 0.0,
+        ..Drive::default()
+    });
+    assert!(g.cruise_rms_deg.unwrap() < 0.1 * want, "{g:?}");
+    assert!((g.rms_deg - want).abs() < 0.15 * want, "{g:?}");
+    // Too short a pre-roll: no cruise feature rather than a number from the filter's run-in.
+    let short = features_with(
+        &Drive {
+            cruise_amp_deg: 0.5,
+            ..Drive::default()
+        },
+        EventConfig {
+            pre_roll_s: 0.5,
+            ..EventConfig::default()
+        },
+    );
+    assert_eq!(short.cruise_rms_deg, None, "{short:?}");
 }

@@ -65,7 +65,7 @@ pub struct Args {
     pub clearance_range: Vec<f64>,
 
     /// Nuisance vehicles drawn from the prior (the same ones at every clearance).
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = 40)]
     pub vehicles: u32,
 
     /// Initial speeds (km/h). Events outside are predicted from the nearest speed.
@@ -172,8 +172,8 @@ pub fn fit_additive(t: &mut ResponseTable, per_cell: usize) {
     let ne = per_cell.max(1) as f64;
     let idx = |ic: usize, im: usize, iv: usize, id: usize| ((ic * nm + im) * nv + iv) * nd + id;
     for ic in 0..nc {
-        for k in 0..2 {
-            let m = |im: usize, iv: usize| t.cells[idx(ic, im, iv, 0)].mean[k];
+        for k in 0..t.n_features() {
+            let m = |im: usize, iv: usize| t.cells[idx(ic, im, iv, 0)].feat_mean(k);
             let nominal: Vec<f64> = (0..nv)
                 .map(|iv| (0..nm).map(|im| m(im, iv)).sum::<f64>() / nm as f64)
                 .collect();
@@ -187,7 +187,7 @@ pub fn fit_additive(t: &mut ResponseTable, per_cell: usize) {
                 }
             }
             let resid_var = r2 / ((nm - 1) * (nv - 1)) as f64;
-            let s = t.cells[idx(ic, 0, 0, 0)].std[k];
+            let s = t.cells[idx(ic, 0, 0, 0)].feat_std(k);
             let within_var = s * s / (1.0 + 1.0 / ne);
             let interaction = (resid_var - within_var / ne).max(0.0);
             let pred = (within_var * (1.0 + 1.0 / (nm as f64 * ne) + 1.0 / (nv as f64 * ne))
@@ -197,9 +197,7 @@ pub fn fit_additive(t: &mut ResponseTable, per_cell: usize) {
             for im in 0..nm {
                 for (iv, nom) in nominal.iter().enumerate() {
                     for id in 0..nd {
-                        let c = &mut t.cells[idx(ic, im, iv, id)];
-                        c.mean[k] = nom + offset[im];
-                        c.std[k] = pred;
+                        t.cells[idx(ic, im, iv, id)].set_feat(k, nom + offset[im], pred);
                     }
                 }
             }
@@ -218,10 +216,15 @@ pub fn pool_spread_globally(t: &mut ResponseTable) {
     let n = t.cells.len().max(1) as f64;
     let v0 = t.cells.iter().map(|c| c.std[0].powi(2)).sum::<f64>() / n;
     let v1 = t.cells.iter().map(|c| c.std[1].powi(2)).sum::<f64>() / n;
+    let vc = t.cells.iter().map(|c| c.cruise[1].powi(2)).sum::<f64>() / n;
     let r = t.cells.iter().map(|c| c.corr).sum::<f64>() / n;
+    let cruise = t.cruise;
     for c in &mut t.cells {
         c.std = [v0.sqrt().max(MIN_STD), v1.sqrt().max(MIN_STD)];
         c.corr = r.clamp(-0.95, 0.95);
+        if cruise {
+            c.cruise[1] = vc.sqrt().max(MIN_STD);
+        }
     }
 }
 
@@ -340,6 +343,7 @@ pub fn build_table(
             )
         });
     let mut z_all = Vec::with_capacity(jobs.len());
+    let mut zc_all = Vec::with_capacity(jobs.len());
     let mut pairs = Vec::with_capacity(jobs.len());
     for (r, &(_, c, im, v, d, seed)) in results.iter().zip(&jobs) {
         let e = r
@@ -350,14 +354,23 @@ pub fn build_table(
             })?;
         let f = &e.features;
         z_all.push(crate::observer::features::z(f.rms_deg, f.peak_deg));
+        let cruise = f.cruise_rms_deg.with_context(|| {
+            format!(
+                "simulated event c = {c} mm, vehicle {im}, {v} km/h, {d} g, seed {seed} has no \
+                 pre-brake cruise window (events.pre_roll_s too short?)"
+            )
+        })?;
+        zc_all.push(crate::observer::features::z_cruise(cruise));
         pairs.push((f.excess_rms_deg, e.true_peak_deg));
     }
     let mut cells: Vec<Cell> = z_all
         .chunks(ns)
-        .map(|z| Cell {
+        .zip(zc_all.chunks(ns))
+        .map(|(z, zc)| Cell {
             mean: mean2(z),
             std: [1.0, 1.0],
             corr: 0.0,
+            cruise: [zc.iter().sum::<f64>() / zc.len() as f64, 1.0],
         })
         .collect();
     let amp = amp_map(&mut pairs, 24);
@@ -370,6 +383,7 @@ pub fn build_table(
         decel_g: grid.decel_g.clone(),
         vehicles: grid.vehicles,
         seeds: grid.seeds,
+        cruise: true,
         cells: std::mem::take(&mut cells),
         amp_map: amp,
         provenance: format!(
@@ -400,9 +414,21 @@ pub fn build_table(
             })
             .collect();
         let (std, corr) = pooled_spread(&res, nm * nv, nd * ns);
+        // The cruise statistic: the same pooling, one dimension (its mean is per vehicle and
+        // speed, averaged over deceleration like the others).
+        let res_c: Vec<[f64; 2]> = (0..per_clearance)
+            .flat_map(|k| {
+                let m = t.cells[cell0 + k].cruise[0];
+                zc_all[(cell0 + k) * ns..(cell0 + k + 1) * ns]
+                    .iter()
+                    .map(move |z| [z - m, z - m])
+            })
+            .collect();
+        let (std_c, _) = pooled_spread(&res_c, nm * nv, nd * ns);
         for c in &mut t.cells[cell0..cell0 + per_clearance] {
             c.std = std;
             c.corr = corr;
+            c.cruise[1] = std_c[0];
         }
     }
     if grid.additive {
@@ -503,6 +529,7 @@ mod tests {
                         mean: [m, m + 1.0],
                         std: [0.2, 0.2],
                         corr: 0.5,
+                        cruise: [-m, 0.2],
                     });
                 }
             }
@@ -516,6 +543,7 @@ mod tests {
             decel_g: vec![0.5],
             vehicles: nm as u32,
             seeds: 2,
+            cruise: true,
             cells,
             amp_map: vec![],
             provenance: String::new(),

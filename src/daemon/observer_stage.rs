@@ -40,6 +40,9 @@ pub struct Evidence {
     /// MODEL.md §11 band-passed steering-wheel RMS and peak (deg).
     pub rms_deg: f64,
     pub peak_deg: f64,
+    /// Pre-brake cruise RMS (deg), when measured (absent in states written before it existed).
+    #[serde(default)]
+    pub cruise_rms_deg: Option<f64>,
     pub v0_kmh: f64,
     pub decel_g: f64,
     /// Daemon odometer when the event finished (m).
@@ -126,6 +129,7 @@ impl ObserverStage {
             let ev = Evidence {
                 rms_deg: rms,
                 peak_deg: peak,
+                cruise_rms_deg: e.cruise_rms_sw_bp_deg,
                 v0_kmh: e.v0_kmh,
                 decel_g: e.decel_g,
                 odometer_m: self.odometer_km * 1000.0,
@@ -140,10 +144,11 @@ impl ObserverStage {
         let Some((est, table)) = self.est.as_mut() else {
             return;
         };
-        est.update(
+        est.update_event(
             table,
             ev.rms_deg,
             ev.peak_deg,
+            ev.cruise_rms_deg,
             ev.v0_kmh,
             ev.decel_g,
             ev.odometer_m,

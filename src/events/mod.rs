@@ -61,7 +61,8 @@ pub struct EventConfig {
     pub record_min_decel_g: f64,
     /// Shortest brake application recorded (s).
     pub min_duration_s: f64,
-    /// Steering samples kept before the brake onset for the filter (s).
+    /// Steering samples kept before the brake onset (s): the band-pass filter's run-in and the
+    /// observer's pre-brake ("cruise") feature (`observer::features::CRUISE_WINDOW_S`).
     pub pre_roll_s: f64,
     /// MODEL.md §11: the window ends this long after the stop / brake release (s).
     pub tail_s: f64,
@@ -90,7 +91,7 @@ impl Default for EventConfig {
             record_min_speed_kmh: 10.0,
             record_min_decel_g: 0.15,
             min_duration_s: 0.5,
-            pre_roll_s: 1.0,
+            pre_roll_s: 2.0,
             tail_s: 0.3,
             stop_speed_mps: 0.5,
             max_samples: 4096,

@@ -15,7 +15,10 @@
 //!   the band-passed RMS and peak) under each (c, θ_m)'s predicted bivariate normal
 //!   ([`ResponseTable::predict`] at the event's speed and deceleration), with the predicted
 //!   spread inflated by `std_inflation` (model mismatch) and a small outlier floor so one odd
-//!   event cannot veto a clearance.
+//!   event cannot veto a clearance. With a v3 table and `cruise = true`, the event's pre-brake
+//!   cruise statistic ([`super::features::z_cruise`]) adds an independent normal term: the
+//!   same vehicle's unbalance response before the brake, which separates a large unbalance on
+//!   tight joints from a rattle on worn ones.
 //! * Between events: a random walk in ln c with variance `wear_var_per_km · distance`, so the
 //!   estimate can follow slow growth (wear) and old events count less.
 //! * Summary: posterior median and 5 %/95 % quantiles (piecewise log-linear CDF over the grid),
@@ -43,16 +46,19 @@ pub struct EstimatorConfig {
     pub detection_limit_mm: f64,
     /// Which features enter the likelihood: "rms", "peak" or "both".
     pub features: String,
+    /// Use the pre-brake cruise statistic when the table has it.
+    pub cruise: bool,
 }
 
 impl Default for EstimatorConfig {
     fn default() -> Self {
         EstimatorConfig {
-            std_inflation: 1.3,
+            std_inflation: 2.0,
             outlier_floor: 1e-3,
             wear_var_per_km: 1e-4,
             detection_limit_mm: 0.08,
             features: "both".into(),
+            cruise: true,
         }
     }
 }
@@ -114,13 +120,14 @@ impl Estimator {
         &self.cfg
     }
 
-    /// Log-likelihood of z under a prediction (bivariate or one marginal). Allocates nothing.
-    fn loglik(&self, z: [f64; 2], p: &super::table::Prediction) -> f64 {
+    /// Log-likelihood of z (and the cruise statistic `zc`, when given) under a prediction
+    /// (bivariate or one marginal, times the cruise term). Allocates nothing.
+    fn loglik(&self, z: [f64; 2], zc: Option<f64>, p: &super::table::Prediction) -> f64 {
         let k = self.cfg.std_inflation;
         let (s0, s1) = (p.std[0] * k, p.std[1] * k);
         let d0 = (z[0] - p.mean[0]) / s0;
         let d1 = (z[1] - p.mean[1]) / s1;
-        let (q, log_norm) = match (self.use_rms, self.use_peak) {
+        let (mut q, mut log_norm) = match (self.use_rms, self.use_peak) {
             (true, true) => {
                 let r = p.corr.clamp(-0.95, 0.95);
                 let om = 1.0 - r * r;
@@ -132,6 +139,12 @@ impl Estimator {
             (true, false) => (d0 * d0, -s0.ln()),
             _ => (d1 * d1, -s1.ln()),
         };
+        if let Some(zc) = zc {
+            let sc = p.cruise[1] * k;
+            let dc = (zc - p.cruise[0]) / sc;
+            q += dc * dc;
+            log_norm -= sc.ln();
+        }
         let core = -0.5 * q;
         // Outlier floor: log(exp(core) + floor).
         let m = core.max(self.cfg.outlier_floor.ln());
@@ -190,7 +203,7 @@ impl Estimator {
         })
     }
 
-    /// Adds one used event: its features, speed, deceleration and odometer (m).
+    /// Adds one used event: its braking features, speed, deceleration and odometer (m).
     pub fn update(
         &mut self,
         table: &ResponseTable,
@@ -200,15 +213,34 @@ impl Estimator {
         decel_g: f64,
         odometer_m: f64,
     ) {
+        self.update_event(table, rms_deg, peak_deg, None, v0_kmh, decel_g, odometer_m);
+    }
+
+    /// [`Self::update`] with the event's pre-brake cruise RMS (deg), used when the table has the
+    /// cruise statistic and the config enables it.
+    #[allow(clippy::too_many_arguments)]
+    pub fn update_event(
+        &mut self,
+        table: &ResponseTable,
+        rms_deg: f64,
+        peak_deg: f64,
+        cruise_rms_deg: Option<f64>,
+        v0_kmh: f64,
+        decel_g: f64,
+        odometer_m: f64,
+    ) {
         if let Some(prev) = self.last_odometer_m {
             self.diffuse((odometer_m - prev) / 1000.0);
         }
         self.last_odometer_m = Some(odometer_m);
         let z = super::features::z(rms_deg, peak_deg);
+        let zc = cruise_rms_deg
+            .filter(|_| self.cfg.cruise && table.cruise)
+            .map(super::features::z_cruise);
         for ic in 0..self.ln_c.len() {
             for im in 0..self.n_m {
                 let p = table.predict(ic, im, v0_kmh, decel_g);
-                self.log_p[ic * self.n_m + im] += self.loglik(z, &p);
+                self.log_p[ic * self.n_m + im] += self.loglik(z, zc, &p);
             }
         }
         self.normalise();

@@ -12,6 +12,15 @@
 //!   the zero-phase filter;
 //! * `excess_rms_deg`: `sqrt(max(rms² − noise_rms², 0))`, the part of the RMS the wheel's motion
 //!   explains. The estimator and the `shimmy_55kmh` amplitude estimate build on it.
+//! * `cruise_rms_deg`: RMS of the same band-passed signal over the [`CRUISE_WINDOW_S`] before
+//!   the brake onset (the detector's pre-roll), when the pre-roll holds enough of it. Before
+//!   the brake the rattle is not excited (MODEL.md §12: the free-play modes are destabilised by
+//!   the braking load transfer), so this is the steering system's response to the wheel
+//!   unbalance and road noise (§7) through the joints: with tight joints the unbalance moves
+//!   the rack, with a wide clearance the wheel's small motion stays inside the free play and
+//!   the steering wheel hardly moves. Beside the braking features it tells a large unbalance
+//!   on tight joints (busy before and during the brake) from a rattle on worn ones (quiet
+//!   before, busy during), which the braking amplitude alone cannot.
 //!
 //! Samples are first put on a uniform grid at the median rate (sample-and-hold over gaps; the
 //! event's quality record counts the gaps). Allocation: the extractor owns its buffers; it
@@ -36,7 +45,22 @@ pub struct Features {
     /// Samples in the window after resampling.
     pub n: u32,
     pub fs_hz: f64,
+    /// RMS of the band-passed signal before the brake onset (deg); `None` when the pre-roll
+    /// holds less than [`CRUISE_MIN_S`] of usable samples.
+    #[serde(default)]
+    pub cruise_rms_deg: Option<f64>,
 }
+
+/// The pre-brake ("cruise") window: it ends [`CRUISE_GUARD_S`] before the brake onset and spans
+/// up to this long (s).
+pub const CRUISE_WINDOW_S: f64 = 1.2;
+/// Gap between the cruise window and the brake onset (s): the pedal's first ramp stays out.
+pub const CRUISE_GUARD_S: f64 = 0.05;
+/// Samples this close to the start of the pre-roll are left out of the cruise window (s): the
+/// zero-phase filter's start-up transient.
+pub const CRUISE_EDGE_S: f64 = 0.4;
+/// Shortest usable cruise window (s).
+pub const CRUISE_MIN_S: f64 = 0.6;
 
 /// What the sensor is assumed to add (used for the noise correction).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -145,6 +169,13 @@ impl Extractor {
         let w = &y[i0..i1];
         let peak = crate::analysis::peak_abs(w);
         let rms = crate::analysis::rms(w);
+        let per_s = 1e9 / dt_ns as f64;
+        let c1 = i0.saturating_sub((CRUISE_GUARD_S * per_s).round() as usize);
+        let c0 = c1
+            .saturating_sub((CRUISE_WINDOW_S * per_s).round() as usize)
+            .max((CRUISE_EDGE_S * per_s).round() as usize);
+        let cruise_rms_deg = (c1 > c0 && (c1 - c0) as f64 >= CRUISE_MIN_S * per_s)
+            .then(|| crate::analysis::rms(&y[c0..c1]));
         let q = if noise.quant_step_deg > 0.0 {
             noise.quant_step_deg
         } else {
@@ -159,8 +190,15 @@ impl Extractor {
             excess_rms_deg: excess,
             n: (i1 - i0) as u32,
             fs_hz,
+            cruise_rms_deg,
         })
     }
+}
+
+/// The cruise statistic of the table and the estimator: `ln √(cruise_rms² + f₀²)`, floored
+/// like the braking RMS.
+pub fn z_cruise(cruise_rms_deg: f64) -> f64 {
+    0.5 * (cruise_rms_deg * cruise_rms_deg + Z_FLOOR_DEG[0] * Z_FLOOR_DEG[0]).ln()
 }
 
 /// Floors (deg) added in quadrature before taking logs in [`z`]: about the sensor's own

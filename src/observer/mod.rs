@@ -83,6 +83,9 @@ pub struct EventOut {
     pub used: bool,
     pub unused_reason: Option<Unused>,
     pub rms_sw_bp_deg: Option<f64>,
+    /// RMS of the band-passed steering-wheel angle before the brake onset (deg; null when the
+    /// pre-roll was too short), see `features`.
+    pub cruise_rms_sw_bp_deg: Option<f64>,
     /// Estimated true steering-wheel amplitude (deg), noise- and quantisation-corrected.
     pub sw_amplitude_deg: Option<f64>,
     pub duration_s: f64,
@@ -226,10 +229,11 @@ impl Observer {
         let amp = feats.as_ref().map(|f| self.amplitude_deg(f));
         if let (true, Some(f), Some(a)) = (used, feats.as_ref(), amp) {
             if let (Some(est), Some(t)) = (self.estimator.as_mut(), self.table.as_ref()) {
-                est.update(
+                est.update_event(
                     t,
                     f.rms_deg,
                     f.peak_deg,
+                    f.cruise_rms_deg,
                     rec.v0_kmh,
                     rec.decel_g,
                     rec.odometer_m,
@@ -260,6 +264,7 @@ impl Observer {
             used,
             unused_reason: reason,
             rms_sw_bp_deg: feats.map(|f| f.rms_deg),
+            cruise_rms_sw_bp_deg: feats.and_then(|f| f.cruise_rms_deg),
             sw_amplitude_deg: amp,
             duration_s: rec.duration_s(),
             sample_hz: rec.quality.sample_hz,

@@ -11,7 +11,10 @@
 //! is the older format whose cells pooled all nuisances into each event's spread.
 //!
 //! Each cell keeps the mean, standard deviation and correlation of z (floored logs of the
-//! band-passed RMS and peak, [`super::features::z`]); [`ResponseTable::predict`] interpolates them bilinearly in (speed, decel). The
+//! band-passed RMS and peak, [`super::features::z`]) and, from format v3 on, the mean and
+//! standard deviation of the pre-brake cruise statistic ([`super::features::z_cruise`],
+//! independent of z within a cell); [`ResponseTable::predict`] interpolates them bilinearly in
+//! (speed, decel). The
 //! table also keeps a calibration of the steering-wheel amplitude: how the true (continuous,
 //! 1 kHz) band-passed peak relates to the measured noise-corrected RMS, used by the
 //! `shimmy_55kmh` alert.
@@ -26,7 +29,9 @@ use serde::{Deserialize, Serialize};
 
 use super::sensor::SensorModel;
 
-pub const FORMAT: &str = "shimmy response table v2";
+pub const FORMAT: &str = "shimmy response table v3";
+/// Without the cruise statistic (`cruise = false`).
+pub const FORMAT_V2: &str = "shimmy response table v2";
 /// The older format (one pooled nuisance distribution per cell); loads as `vehicles = 1`.
 pub const FORMAT_V1: &str = "shimmy response table v1";
 
@@ -34,20 +39,55 @@ fn one() -> u32 {
     1
 }
 
-/// Distribution of z = (ln rms_deg, ln peak_deg) in one grid cell.
+/// Distribution of z = (ln rms_deg, ln peak_deg) in one grid cell, and of the cruise
+/// statistic (mean, std; both 0 in tables without it).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Cell {
     pub mean: [f64; 2],
     pub std: [f64; 2],
     pub corr: f64,
+    #[serde(default)]
+    pub cruise: [f64; 2],
 }
 
-/// Mean and covariance of z predicted for one clearance.
+impl Cell {
+    /// Mean of feature `k`: 0 ln RMS, 1 ln peak, 2 the cruise statistic.
+    pub fn feat_mean(&self, k: usize) -> f64 {
+        if k < 2 {
+            self.mean[k]
+        } else {
+            self.cruise[0]
+        }
+    }
+
+    /// Spread of feature `k` (see [`Self::feat_mean`]).
+    pub fn feat_std(&self, k: usize) -> f64 {
+        if k < 2 {
+            self.std[k]
+        } else {
+            self.cruise[1]
+        }
+    }
+
+    /// Sets mean and spread of feature `k` (see [`Self::feat_mean`]).
+    pub fn set_feat(&mut self, k: usize, mean: f64, std: f64) {
+        if k < 2 {
+            self.mean[k] = mean;
+            self.std[k] = std;
+        } else {
+            self.cruise = [mean, std];
+        }
+    }
+}
+
+/// Mean and covariance of z predicted for one clearance, and the cruise statistic's (mean,
+/// std).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Prediction {
     pub mean: [f64; 2],
     pub std: [f64; 2],
     pub corr: f64,
+    pub cruise: [f64; 2],
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -65,6 +105,9 @@ pub struct ResponseTable {
     pub vehicles: u32,
     /// Seeds per cell.
     pub seeds: u32,
+    /// The cells carry the pre-brake cruise statistic (format v3).
+    #[serde(default)]
+    pub cruise: bool,
     /// Cells, index `((ic · vehicles + im) · n_speed + iv) · n_decel + id`.
     pub cells: Vec<Cell>,
     /// Amplitude calibration: increasing measured excess RMS (deg) → median true band-passed
@@ -111,6 +154,11 @@ impl ResponseTable {
         self.clearance_mm.len()
     }
 
+    /// Features per cell: 2 (ln RMS, ln peak), 3 with the cruise statistic.
+    pub fn n_features(&self) -> usize {
+        2 + self.cruise as usize
+    }
+
     /// Nuisance vehicles per clearance (M ≥ 1).
     pub fn n_vehicles(&self) -> usize {
         self.vehicles.max(1) as usize
@@ -126,7 +174,7 @@ impl ResponseTable {
 
     /// Checks shape, ordering and finiteness.
     pub fn validate(&self) -> anyhow::Result<()> {
-        if self.format != FORMAT && self.format != FORMAT_V1 {
+        if self.format != FORMAT && self.format != FORMAT_V2 && self.format != FORMAT_V1 {
             bail!(
                 "not a response table: format `{}` (want `{FORMAT}`)",
                 self.format
@@ -153,6 +201,9 @@ impl ResponseTable {
         if self.format == FORMAT_V1 && self.vehicles != 1 {
             bail!("a {FORMAT_V1} has one pooled nuisance distribution (vehicles = 1)");
         }
+        if self.cruise != (self.format == FORMAT) {
+            bail!("a `{}` table must have cruise = {}", self.format, !self.cruise);
+        }
         let want =
             self.clearance_mm.len() * self.n_vehicles() * self.speed_kmh.len() * self.decel_g.len();
         if self.cells.len() != want {
@@ -161,7 +212,8 @@ impl ResponseTable {
         for (k, c) in self.cells.iter().enumerate() {
             let ok = c.mean.iter().chain(c.std.iter()).all(|v| v.is_finite())
                 && c.std.iter().all(|&s| s > 0.0)
-                && c.corr.abs() < 1.0;
+                && c.corr.abs() < 1.0
+                && (!self.cruise || (c.cruise[0].is_finite() && c.cruise[1] > 0.0));
             if !ok {
                 bail!("table cell {k} is not a valid distribution: {c:?}");
             }
@@ -211,6 +263,7 @@ impl ResponseTable {
                 for k in 0..2 {
                     p.mean[k] += f * c.mean[k];
                     p.std[k] += f * c.std[k];
+                    p.cruise[k] += f * c.cruise[k];
                 }
                 p.corr += f * c.corr;
             }
@@ -222,8 +275,10 @@ impl ResponseTable {
     /// deceleration axis (its effect is small next to the seed spread, MODEL.md §13 varies speed
     /// and clearance only) and then made non-decreasing in clearance by isotonic regression
     /// (pool-adjacent-violators; the shimmy amplitude grows with clearance, MODEL.md §12–13),
-    /// separately for each nuisance vehicle (the same vehicle at every clearance).
-    /// Spreads and correlations are kept.
+    /// separately for each nuisance vehicle (the same vehicle at every clearance). The cruise
+    /// statistic is averaged over deceleration too (it is measured before the brake) but not
+    /// made monotone: a wider free play hides more of the unbalance response, but not
+    /// monotonically at every speed. Spreads and correlations are kept.
     pub fn smooth(&mut self) {
         let (nc, nm, nv, nd) = (
             self.clearance_mm.len(),
@@ -248,6 +303,23 @@ impl ResponseTable {
                             let i = self.idx(ic, im, iv, id);
                             self.cells[i].mean[k] = m;
                         }
+                    }
+                }
+            }
+        }
+        if !self.cruise {
+            return;
+        }
+        for im in 0..nm {
+            for iv in 0..nv {
+                for ic in 0..nc {
+                    let m = (0..nd)
+                        .map(|id| self.cell(ic, im, iv, id).cruise[0])
+                        .sum::<f64>()
+                        / nd as f64;
+                    for id in 0..nd {
+                        let i = self.idx(ic, im, iv, id);
+                        self.cells[i].cruise[0] = m;
                     }
                 }
             }
