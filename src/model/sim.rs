@@ -387,7 +387,8 @@ impl Simulator {
             quiet_merge: {
                 let h_max = QUIET_H_LAMBDA * p.steering.tie_rod_mass_kg
                     / p.steering.restraint_damping_ns_per_m;
-                ((h_max / sc.h_s).floor() as u64).clamp(ADAPTIVE_MAX_MERGE, ADAPTIVE_QUIET_MAX_MERGE)
+                ((h_max / sc.h_s).floor() as u64)
+                    .clamp(ADAPTIVE_MAX_MERGE, ADAPTIVE_QUIET_MAX_MERGE)
             },
         };
         sim.update_contact_flags();
@@ -918,7 +919,11 @@ mod tests {
         assert!(sim.quiet());
         let (merged0, _) = sim.merge_stats();
         sim.advance(5_000);
-        assert!(sim.merge_stats().0 > merged0 + 150, "{:?}", sim.merge_stats());
+        assert!(
+            sim.merge_stats().0 > merged0 + 150,
+            "{:?}",
+            sim.merge_stats()
+        );
         assert!(sim.noise_behind);
         sim.set_decel_demand(-2.0);
         sim.advance(3_000);
