@@ -21,6 +21,9 @@ pub struct Excitation {
     sigma: f64,
     decay: f64,
     innov: f64,
+    /// How many times [`Self::advance`] has been called (the position of `noise` on the
+    /// hold grid).
+    advances: u64,
 }
 
 impl Excitation {
@@ -37,6 +40,7 @@ impl Excitation {
             sigma,
             decay,
             innov: sigma * (1.0 - decay * decay).sqrt(),
+            advances: 0,
         };
         let z0: f64 = ex.rng.sample(StandardNormal);
         let z1: f64 = ex.rng.sample(StandardNormal);
@@ -47,12 +51,27 @@ impl Excitation {
     /// Advances the OU processes by one step h (exact discretisation).
     #[inline]
     pub fn advance(&mut self) {
+        self.advances += 1;
         if self.sigma == 0.0 {
             return;
         }
         for n in &mut self.noise {
             let z: f64 = self.rng.sample(StandardNormal);
             *n = self.decay * *n + self.innov * z;
+        }
+    }
+
+    /// Number of [`Self::advance`] calls so far: `noise` is the value after that many steps.
+    #[inline]
+    pub fn advances(&self) -> u64 {
+        self.advances
+    }
+
+    /// Advances until `count` steps have been taken (a catch-up after steps in which the
+    /// noise was not needed): the same values as `count` calls of [`Self::advance`] in a row.
+    pub fn advance_to(&mut self, count: u64) {
+        while self.advances < count {
+            self.advance();
         }
     }
 }

@@ -87,7 +87,8 @@ fn lagrange_weights(off: [f64; 3], n: usize, tau: f64) -> [f64; 3] {
 /// shifted from `tr0` (those of `y` at the step start) by angle addition (exact to rounding,
 /// no libm call for small increments), and the tire outputs come from `tires`. Returns the
 /// by-products of the last stage and the largest penetration δ of a clearance joint seen at
-/// any stage (negative while no stage is in contact).
+/// any stage (negative while no stage is in contact). With `stages`, the four stage slopes
+/// k1–k4 are copied there for [`rk4_dense`].
 #[inline]
 #[allow(clippy::too_many_arguments)]
 pub fn rk4_step_shared(
@@ -98,6 +99,7 @@ pub fn rk4_step_shared(
     ctx: &StepCtx,
     tr0: &Trig,
     tires: StageTires,
+    stages: Option<&mut [State; 4]>,
 ) -> (Aux, f64) {
     let mut aux = Aux::default();
     let mut k1 = [0.0; N];
@@ -142,5 +144,26 @@ pub fn rk4_step_shared(
     for i in 0..N {
         y[i] += h6 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]);
     }
+    if let Some(k) = stages {
+        *k = [k1, k2, k3, k4];
+    }
     (aux, max_delta)
+}
+
+/// Dense output of a classical RK4 step of length `h` from `y0` with stage slopes `k`: the
+/// state at t + θ·h (0 ≤ θ ≤ 1) by the third-order continuous extension of the classical
+/// RK4 (Hairer, Nørsett & Wanner, *Solving ODEs I*, §II.6): y0 + h·Σ b_i(θ)·k_i with
+/// b1 = θ − 3θ²/2 + 2θ³/3, b2 = b3 = θ² − 2θ³/3, b4 = −θ²/2 + 2θ³/3. It needs no extra
+/// right-hand side, and at θ = 1 it is the step's end value.
+#[inline]
+pub fn rk4_dense(y0: &State, k: &[State; 4], h: f64, theta: f64) -> State {
+    let (t2, t3) = (theta * theta, theta * theta * theta);
+    let b1 = theta - 1.5 * t2 + t3 * (2.0 / 3.0);
+    let b23 = t2 - t3 * (2.0 / 3.0);
+    let b4 = -0.5 * t2 + t3 * (2.0 / 3.0);
+    let mut y = *y0;
+    for i in 0..N {
+        y[i] += h * (b1 * k[0][i] + b23 * (k[1][i] + k[2][i]) + b4 * k[3][i]);
+    }
+    y
 }

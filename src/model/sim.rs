@@ -7,7 +7,7 @@
 
 use super::braking::Demand;
 use super::excitation::Excitation;
-use super::integrate::{rk4_step, rk4_step_shared, StageTires};
+use super::integrate::{rk4_dense, rk4_step, rk4_step_shared, StageTires};
 use super::params::VehicleParams;
 use super::rhs::{ix, Aux, JointMode, Model, State, StepCtx, Switches, TireOut, Trig, N};
 use serde::{Deserialize, Serialize};
@@ -76,7 +76,11 @@ pub enum Integrator {
     /// `Rk4Multirate`) and the §7 road noise averaged over the merged grid
     /// intervals. A step that would touch a contact is rejected and redone on the grid, so
     /// contact onsets are found on the grid as in `Rk4`. Merging happens only in
-    /// [`Simulator::advance`] (and [`run`]); `Simulator::step` is one grid step.
+    /// [`Simulator::advance`] (and [`run`]); `Simulator::step` is one grid step. At
+    /// standstill (below [`QUIET_SPEED_MPS`], §6 fade finished) the §7 noise moment, scaled by
+    /// v/v_n ≈ 0, is left out (its draws are made up if the car moves again, so the
+    /// realisation is unchanged), and merged steps grow to ≈ 2 ms ([`QUIET_H_LAMBDA`]), past
+    /// the `advance` boundaries, which then see the step's RK4 dense output.
     Rk4Adaptive,
 }
 
@@ -115,6 +119,42 @@ pub const MULTIRATE_TIRE_EVERY: u64 = 2;
 
 /// Most grid steps `Integrator::Rk4Adaptive` merges into one free-flight step.
 pub const ADAPTIVE_MAX_MERGE: u64 = 10;
+
+/// Most grid steps `Integrator::Rk4Adaptive` merges into one free-flight step at standstill
+/// (see [`QUIET_SPEED_MPS`]), at most; the vehicle's own bound is set by [`QUIET_H_LAMBDA`] (never
+/// below [`ADAPTIVE_MAX_MERGE`]).
+pub const ADAPTIVE_QUIET_MAX_MERGE: u64 = 25;
+
+/// Standstill merged steps are at most this over the rate c_g/m_t of the fastest free mode,
+/// the tie rod on its restraint damper (§3 eq. (4); a real eigenvalue ≈ −910 s⁻¹ at the §9
+/// values, so ≈ 2 ms): inside RK4's real stability interval (−2.785, 0) with margin. That
+/// mode is then damped by RK4's 0.29 per step instead of e^−1.8 = 0.17, which only shows in
+/// the already decayed tie-rod position (sub-nanometre after a stop).
+pub const QUIET_H_LAMBDA: f64 = 1.8;
+
+/// `Integrator::Rk4Adaptive`: below this speed, with a demand that cannot speed the car up,
+/// the vehicle is at standstill for the merging: the §7 road-noise moment (scaled by v/v_n,
+/// here < 7·10⁻⁵·σ) is left out, and merged steps may be longer than 1 ms (see
+/// [`QUIET_H_LAMBDA`]), past the caller's `advance` boundary (dense output).
+pub const QUIET_SPEED_MPS: f64 = 1e-3;
+
+/// `Integrator::Rk4Adaptive`: an accepted merged step that ends after the boundary of the
+/// `advance` call that took it. The simulator shows the dense-output state at its boundaries
+/// until the step's end is reached.
+#[derive(Debug, Clone)]
+struct Lookahead {
+    /// Grid indices of the step's start and end.
+    start: u64,
+    end: u64,
+    /// Step length, start state and stage slopes (for [`rk4_dense`]).
+    h: f64,
+    y0: State,
+    k: [State; 4],
+    /// End state, its sines/cosines and penetrations.
+    y1: State,
+    trig1: Trig,
+    pen1: [(f64, f64); 2],
+}
 
 impl Default for Scenario {
     fn default() -> Self {
@@ -254,6 +294,14 @@ pub struct Simulator {
     /// Adaptive: merged steps taken and rejected (diagnostics).
     merged: u64,
     rejected: u64,
+    /// Adaptive: a merged step that runs past the current time (see [`Lookahead`]); while it
+    /// is pending, `y` is its dense output at `steps`.
+    ahead: Option<Lookahead>,
+    /// Adaptive: grid steps per merged step at standstill (from [`QUIET_H_LAMBDA`]).
+    quiet_merge: u64,
+    /// Adaptive: standstill steps skipped noise draws; the generator is caught up to the
+    /// current step (same values as drawing them in turn) before the noise is used again.
+    noise_behind: bool,
 }
 
 /// Hold time of the road noise (MODEL.md §7: held over each step of h = 1e-4 s).
@@ -334,6 +382,14 @@ impl Simulator {
             merged_valid: 0,
             merged: 0,
             rejected: 0,
+            ahead: None,
+            noise_behind: false,
+            quiet_merge: {
+                let h_max = QUIET_H_LAMBDA * p.steering.tie_rod_mass_kg
+                    / p.steering.restraint_damping_ns_per_m;
+                ((h_max / sc.h_s).floor() as u64)
+                    .clamp(ADAPTIVE_MAX_MERGE, ADAPTIVE_QUIET_MAX_MERGE)
+            },
         };
         sim.update_contact_flags();
         Ok(sim)
@@ -375,6 +431,7 @@ impl Simulator {
                 });
             }
         }
+        self.commit_lookahead();
         self.model.set_clearance(&self.params, left_m, right_m);
         self.update_contact_flags();
         Ok(())
@@ -392,7 +449,9 @@ impl Simulator {
             a_mps2: if a_mps2.is_finite() { a_mps2 } else { 0.0 },
         };
         if demand != self.ctx.demand {
-            // A jump in the demand: do not extrapolate the tire forces across it.
+            // A jump in the demand: do not extrapolate the tire forces across it, nor keep a
+            // step taken ahead under the old demand.
+            self.commit_lookahead();
             self.tire_n = 0;
             self.merged_valid = 0;
         }
@@ -413,6 +472,8 @@ impl Simulator {
     /// step-boundary updates of MODEL.md §4/§10.
     #[inline]
     pub fn step(&mut self) {
+        self.commit_lookahead();
+        self.sync_noise();
         let t = self.t();
         match self.integrator {
             Integrator::Rk4 | Integrator::Rk4WarmSlip => {
@@ -441,9 +502,29 @@ impl Simulator {
         }
         let end = self.steps + n;
         while self.steps < end {
-            let m = (end - self.steps).min(ADAPTIVE_MAX_MERGE);
+            if let Some(la) = &self.ahead {
+                if la.end > end {
+                    // Inside a step taken ahead: its dense output at this boundary.
+                    let theta = (end - la.start) as f64 / (la.end - la.start) as f64;
+                    self.y = rk4_dense(&la.y0, &la.k, la.h, theta);
+                    self.steps = end;
+                    return;
+                }
+                self.y = la.y1;
+                self.trig = la.trig1;
+                self.pen = la.pen1;
+                self.steps = la.end;
+                self.ahead = None;
+                continue;
+            }
+            let quiet = self.quiet();
+            let m = if quiet {
+                self.quiet_merge
+            } else {
+                (end - self.steps).min(ADAPTIVE_MAX_MERGE)
+            };
             let free = self.ctx.v_imp[0].is_none() && self.ctx.v_imp[1].is_none();
-            if m >= 2 && free && self.steps >= self.fine_until && self.try_merged(m) {
+            if m >= 2 && free && self.steps >= self.fine_until && self.try_merged(m, quiet, end) {
                 continue;
             }
             if !free {
@@ -482,33 +563,83 @@ impl Simulator {
             &self.ctx,
             &self.trig,
             tires,
+            None,
         );
+    }
+
+    /// Whether the vehicle is at standstill for `Integrator::Rk4Adaptive` (below
+    /// [`QUIET_SPEED_MPS`], and the demand brakes or holds, so it stays there).
+    #[inline]
+    fn quiet(&self) -> bool {
+        let v = self.y[ix::V];
+        v.abs() < QUIET_SPEED_MPS && self.ctx.demand.a_dem(self.t(), v, self.model.v_stop) >= 0.0
+    }
+
+    /// After standstill steps that skipped the noise draws: draws them now, in order, so the
+    /// noise of the current grid step is the one the grid schemes see (§7).
+    #[inline]
+    fn sync_noise(&mut self) {
+        if self.noise_behind {
+            self.exc.advance_to(self.steps / self.noise_stride);
+            self.ctx.noise = self.exc.noise;
+            self.noise_behind = false;
+        }
+    }
+
+    /// Drops a pending [`Lookahead`] step: its dense output at the current boundary (already
+    /// in `y`) becomes the start of what follows. Used before a single grid step and when an
+    /// input changes (demand, clearance), so that no step outlives the inputs it was taken
+    /// with.
+    #[inline]
+    fn commit_lookahead(&mut self) {
+        if self.ahead.is_some() {
+            self.ahead = None;
+            self.merged_valid = 0;
+            self.tire_n = 0;
+            self.update_contact_flags();
+        }
     }
 
     /// Tries one RK4 step over `m` grid steps in free flight (`Integrator::Rk4Adaptive`).
     /// Accepted only if no clearance joint penetrates at any stage, at the end, or on the
     /// cubic Hermite interpolant of δ through the two ends; otherwise everything is restored,
-    /// the next `m` grid steps are forced onto the grid, and false is returned.
-    fn try_merged(&mut self, m: u64) -> bool {
+    /// the next `m` grid steps are forced onto the grid, and false is returned. `quiet`: at
+    /// standstill, without road noise. A step that ends after grid index `end` (the boundary
+    /// of the current `advance`) is kept as a [`Lookahead`].
+    fn try_merged(&mut self, m: u64, quiet: bool, end: u64) -> bool {
+        if !quiet {
+            self.sync_noise();
+        }
         let t = self.t();
         let y0 = self.y;
-        let exc0 = self.exc.clone();
+        let exc0 = (!quiet).then(|| self.exc.clone());
         let noise0 = self.ctx.noise;
-        // §7 noise: the held grid values averaged over the merged intervals.
-        let mut sum = [0.0; 2];
-        let mut k = self.steps;
-        for _ in 0..m {
-            sum[0] += self.ctx.noise[0];
-            sum[1] += self.ctx.noise[1];
-            k += 1;
-            if self.noise_on && k.is_multiple_of(self.noise_stride) {
-                self.exc.advance();
-                self.ctx.noise = self.exc.noise;
+        let noise_end = if quiet {
+            // §7: the noise moment is scaled by v/v_n ≈ 0; its draws are made up later by
+            // `sync_noise` if the car moves again.
+            self.noise_behind = self.noise_on;
+            self.ctx.noise = [0.0; 2];
+            [0.0; 2]
+        } else {
+            // §7 noise: the held grid values averaged over the merged intervals.
+            let mut sum = [0.0; 2];
+            let mut k = self.steps;
+            for _ in 0..m {
+                sum[0] += self.ctx.noise[0];
+                sum[1] += self.ctx.noise[1];
+                k += 1;
+                if self.noise_on && k.is_multiple_of(self.noise_stride) {
+                    self.exc.advance();
+                    self.ctx.noise = self.exc.noise;
+                }
             }
-        }
-        let noise_end = self.ctx.noise;
-        let inv_m = 1.0 / m as f64;
-        self.ctx.noise = [sum[0] * inv_m, sum[1] * inv_m];
+            let noise_end = self.ctx.noise;
+            let inv_m = 1.0 / m as f64;
+            self.ctx.noise = [sum[0] * inv_m, sum[1] * inv_m];
+            noise_end
+        };
+        let lookahead = self.steps + m > end;
+        let mut stages = [[0.0; N]; 4];
         let big_h = m as f64 * self.h;
         // Tires: after two merged steps in a row, exact once at the step start and
         // extrapolated over the stages by the parabola through the last three step starts;
@@ -533,6 +664,7 @@ impl Simulator {
             &self.ctx,
             &self.trig,
             tires,
+            lookahead.then_some(&mut stages),
         );
         let trig1 = Trig::exact(&self.model, &self.y);
         let pen1 = self.model.penetrations_trig(&self.y, &trig1);
@@ -544,7 +676,9 @@ impl Simulator {
         }
         if !ok {
             self.y = y0;
-            self.exc = exc0;
+            if let Some(exc0) = exc0 {
+                self.exc = exc0;
+            }
             self.ctx.noise = noise0;
             self.fine_until = self.steps + m;
             self.rejected += 1;
@@ -555,9 +689,22 @@ impl Simulator {
         self.merged_t = [t, self.merged_t[0], self.merged_t[1]];
         self.merged_valid = (self.merged_valid + 1).min(3);
         self.merged += 1;
-        self.steps += m;
-        self.trig = trig1;
-        self.pen = pen1;
+        if lookahead {
+            self.ahead = Some(Lookahead {
+                start: self.steps,
+                end: self.steps + m,
+                h: big_h,
+                y0,
+                k: stages,
+                y1: self.y,
+                trig1,
+                pen1,
+            });
+        } else {
+            self.steps += m;
+            self.trig = trig1;
+            self.pen = pen1;
+        }
         self.ctx.noise = noise_end;
         self.ctx.kappa_guess = if self.merged_valid >= 3 {
             now.kappa
@@ -708,4 +855,91 @@ fn hermite_stays_negative((d0, r0): (f64, f64), (d1, r1): (f64, f64), h: f64) ->
             + (s3 - s2) * h * r1;
         d < 0.0
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn adaptive(sc: Scenario) -> Simulator {
+        let sc = Scenario {
+            integrator: Integrator::Rk4Adaptive,
+            ..sc
+        };
+        Simulator::new(&VehicleParams::default(), &sc).unwrap()
+    }
+
+    #[test]
+    fn standstill_steps_ahead_end_where_they_would_without_the_boundaries() {
+        // Stopped (v < QUIET_SPEED_MPS from 4.35 s on): merged steps of ≈ 2 ms run past the
+        // 1 ms boundaries and are shown by dense output there. Without road noise, so that
+        // the grid steps see the same model (the standstill steps leave the noise out).
+        let mut a = adaptive(Scenario {
+            noise: false,
+            ..Scenario::default()
+        });
+        a.advance(44_000);
+        assert!(a.quiet());
+        let mut b = a.clone();
+        let mut fine = a.clone();
+        a.advance(5_000);
+        // Largest deviation and largest value of θ1, x, θ1' over the samples.
+        let (mut dev, mut max) = ([0.0f64; 3], [0.0f64; 3]);
+        for _ in 0..500 {
+            b.advance(10);
+            for _ in 0..10 {
+                fine.step();
+            }
+            for (j, i) in [ix::TH1, ix::X, ix::TH1D].into_iter().enumerate() {
+                dev[j] = dev[j].max((b.y[i] - fine.y[i]).abs());
+                max[j] = max[j].max(fine.y[i].abs());
+            }
+        }
+        let rel = [dev[0] / max[0], dev[1] / max[1], dev[2] / max[2]];
+        // Same merged steps, whatever the chunking: identical end state.
+        assert_eq!(a.y, b.y);
+        assert_eq!(a.steps, b.steps);
+        // The dense output at the boundaries agrees with grid steps.
+        // θ1, θ1' to 1e-4 of their amplitude; the tie-rod position x (< 1 nm here) to 10 %:
+        // RK4 damps its fast real mode less at 2 ms (QUIET_H_LAMBDA).
+        assert!(
+            rel[0] < 1e-4 && rel[2] < 1e-4 && rel[1] < 0.1,
+            "dense output vs grid steps: {dev:?} of {max:?}"
+        );
+    }
+
+    #[test]
+    fn noise_draws_skipped_at_standstill_are_made_up_when_the_car_moves_again() {
+        let mut sim = adaptive(Scenario {
+            v0_mps: 3.0,
+            ..Scenario::default()
+        });
+        sim.set_decel_demand(5.0);
+        sim.advance(15_000); // stopped after ≈ 0.7 s, then standing
+        assert!(sim.quiet());
+        let (merged0, _) = sim.merge_stats();
+        sim.advance(5_000);
+        assert!(
+            sim.merge_stats().0 > merged0 + 150,
+            "{:?}",
+            sim.merge_stats()
+        );
+        assert!(sim.noise_behind);
+        sim.set_decel_demand(-2.0);
+        sim.advance(3_000);
+        assert!(!sim.noise_behind && sim.y[ix::V] > 0.5);
+        // The noise of the current grid step is the grid schemes' value: the stream drawn
+        // once per grid step in turn.
+        let mut want = Excitation::new(
+            0,
+            VehicleParams::default().excitation.noise_std_nm,
+            VehicleParams::default().excitation.noise_tau_s,
+            NOISE_HOLD_S,
+        );
+        for _ in 0..sim.steps {
+            want.advance();
+        }
+        assert_eq!(sim.exc.advances(), sim.steps);
+        assert_eq!(sim.exc.noise, want.noise);
+    }
 }

@@ -137,28 +137,7 @@ pub struct Outcome {
     pub cwt: Option<Cwt>,
 }
 
-/// CPU time of the calling thread (s); wall time where unavailable.
-pub fn thread_cpu_s() -> f64 {
-    #[cfg(target_os = "linux")]
-    {
-        let mut ts = libc::timespec {
-            tv_sec: 0,
-            tv_nsec: 0,
-        };
-        // SAFETY: clock_gettime writes into the timespec we own; CLOCK_THREAD_CPUTIME_ID is
-        // always available on Linux.
-        let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-        if rc == 0 {
-            return ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9;
-        }
-    }
-    use std::sync::OnceLock;
-    static START: OnceLock<std::time::Instant> = OnceLock::new();
-    START
-        .get_or_init(std::time::Instant::now)
-        .elapsed()
-        .as_secs_f64()
-}
+use crate::cli::simulate::thread_cpu_s;
 
 /// The CWT frequency grid used for maps and entropies: 48 log-spaced frequencies, 1–40 Hz.
 pub fn cwt_grid() -> Vec<f64> {
