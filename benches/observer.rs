@@ -1,7 +1,7 @@
 //! Cost of the clearance observer per braking event (issue 5: target under 20 ms on one core
 //! once the response table is built): the detector over one event's samples, the feature
 //! extraction (band-pass, peak, RMS, noise correction) and the posterior update over a table
-//! of the default `shimmy calibrate` grid size (12 clearances x 10 nuisance vehicles x 6 speeds
+//! of the default `shimmy calibrate` grid size (12 clearances x 40 nuisance vehicles x 6 speeds
 //! x 2 decelerations).
 //!
 //! Run: cargo bench --bench observer
@@ -21,7 +21,7 @@ fn table() -> ResponseTable {
         .collect();
     let speed_kmh = vec![30.0, 42.0, 55.0, 70.0, 85.0, 100.0];
     let decel_g = vec![0.3, 0.8];
-    let vehicles = 10;
+    let vehicles = 40;
     let mut cells = Vec::new();
     for &c in &clearance_mm {
         for m in 0..vehicles {
@@ -105,7 +105,7 @@ fn bench(c: &mut Criterion) {
     let mut est = Estimator::new(&t, EstimatorConfig::default()).unwrap();
     let mut odo = 0.0;
     c.bench_function(
-        "observer: posterior update only (12 clearances x 10 vehicles)",
+        "observer: posterior update only (12 clearances x 40 vehicles)",
         |b| {
             b.iter(|| {
                 odo += 1000.0;
