@@ -41,14 +41,12 @@ fn run<P: Plant>(sim: &mut FirmwareSim<P>, buf: &mut Vec<u8>) -> f64 {
     sim.t_s()
 }
 
-/// CPU time of this thread (s) from /proc/thread-self/stat (utime + stime, 100 ticks/s on
-/// Linux), so the rate does not depend on other load on the machine. None elsewhere.
+/// CPU time of this thread (s): the exact per-thread clock shared with the model bench
+/// (`shimmy::cli::simulate::thread_cpu_s`), so the rate does not depend on other load on the
+/// machine (the /proc tick counter used before quantised a 0.05 s run to 10 ms steps).
 fn thread_cpu_s() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/thread-self/stat").ok()?;
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
-    Some(ticks / 100.0)
+    let t = shimmy::cli::simulate::thread_cpu_s();
+    (t > 0.0).then_some(t)
 }
 
 /// (simulated s per CPU s, simulated s per wall s) over `n` whole runs, set-up included.
@@ -66,7 +64,7 @@ fn rates<P: Plant>(
     let wall = w0.elapsed().as_secs_f64();
     let cpu = c0
         .zip(thread_cpu_s())
-        .map(|(a, b)| sim_s / (b - a).max(0.01));
+        .map(|(a, b)| sim_s / (b - a).max(1e-6));
     (cpu, sim_s / wall)
 }
 
