@@ -44,6 +44,34 @@ mod tests {
         );
         assert_eq!(super::when(12.5), "12.50 s");
     }
+
+    /// "OK" only when the posterior keeps the clearance below the replacement limit; an
+    /// interval that includes it is "keep monitoring", whatever its median.
+    #[test]
+    fn verdict_says_ok_only_below_the_limit_and_keep_monitoring_across_it() {
+        use crate::daemon::config::AlertsSection;
+        use crate::daemon::pipeline::Estimate;
+        let cfg = AlertsSection::default();
+        let est = |median: Option<f64>, lo: f64, hi: f64, detectable: bool| Estimate {
+            clearance_mm: median,
+            interval_mm: Some([lo, hi]),
+            detectable,
+            below_mm: (!detectable).then_some(hi),
+            p_above: Some(0.5),
+            events_used: 12,
+        };
+        let v = |e: Estimate| super::verdict(&[], Some(&e), 12, &cfg);
+        let ok = v(est(Some(0.085), 0.081, 0.093, true));
+        assert_eq!(ok.condition, "ok", "{ok:?}");
+        assert!(ok.headline.contains("0.085"), "{ok:?}");
+        assert_eq!(v(est(None, 0.02, 0.07, false)).condition, "ok");
+        let wide = v(est(None, 0.04, 0.6, false));
+        assert_eq!(wide.condition, "undecided", "{wide:?}");
+        assert!(wide.headline.contains("0.04 and 0.60"), "{wide:?}");
+        assert_eq!(v(est(Some(0.09), 0.082, 0.14, true)).condition, "undecided");
+        let none = super::verdict(&[], None, 0, &cfg);
+        assert_eq!(none.condition, "unknown");
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -55,7 +83,8 @@ pub struct TrendPoint {
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Verdict {
-    /// `replace`, `inspect`, `ok`, `unknown`.
+    /// `replace`, `inspect`, `ok` (the 90 % interval lies below the replacement limit),
+    /// `undecided` (it includes the limit: keep monitoring), `unknown` (no estimate).
     pub condition: String,
     pub headline: String,
     pub estimate: Option<Estimate>,
@@ -107,17 +136,37 @@ fn verdict(open: &[Alert], est: Option<&Estimate>, events: usize, cfg: &AlertsSe
         )
     } else {
         match est {
-            Some(e) if e.events_used > 0 => match (e.detectable, e.clearance_mm, e.below_mm) {
-                (true, Some(c), _) => (
-                    "ok",
-                    format!("No alert. Estimated clearance {c:.3} mm (below the {:.2} mm replacement limit).", cfg.clearance_mm),
-                ),
-                (_, _, Some(b)) => (
-                    "ok",
-                    format!("No alert. Clearance below the detection limit (below {b:.2} mm)."),
-                ),
-                _ => ("ok", "No alert.".to_string()),
-            },
+            Some(e) if e.events_used > 0 => {
+                let limit = cfg.clearance_mm;
+                // The upper end of what the posterior allows: the 90 % interval's, or the
+                // "below" bound of an estimate under the detection limit.
+                let upper = e.interval_mm.map(|i| i[1]).or(e.below_mm);
+                let lower = e.interval_mm.map(|i| i[0]);
+                let p = e
+                    .p_above
+                    .map_or(String::new(), |p| format!(", probability above it {:.0} %", p * 100.0));
+                match (upper, e.clearance_mm) {
+                    (Some(u), Some(c)) if e.detectable && u < limit => (
+                        "ok",
+                        format!("No alert. Estimated clearance {c:.3} mm, below the {limit:.2} mm replacement limit."),
+                    ),
+                    (Some(u), _) if u < limit => (
+                        "ok",
+                        format!("No alert. Clearance below {u:.2} mm, within the {limit:.2} mm replacement limit."),
+                    ),
+                    (Some(u), _) => (
+                        "undecided",
+                        format!(
+                            "No alert yet, not enough evidence: the clearance lies between {} and {u:.2} mm (90 %), \
+                             which includes the {limit:.2} mm replacement limit{p}, from {} braking events. \
+                             Keep monitoring: further braking events, best from above about 45 km/h, narrow it.",
+                            lower.map_or("0".to_string(), |l| format!("{l:.2}")),
+                            e.events_used
+                        ),
+                    ),
+                    _ => ("ok", "No alert.".to_string()),
+                }
+            }
             _ if events == 0 => (
                 "unknown",
                 "No usable braking events recorded: the joints cannot be judged from this data.".into(),
@@ -313,7 +362,7 @@ fn trend_svg(d: &ReportData) -> String {
         }
     }
     let mut c = svg::Chart::new(
-        "Estimated joint clearance over distance (90 % interval shaded)",
+        "Joint clearance over distance (90 % interval shaded)",
         "odometer (km)",
         "clearance (mm)",
         (x0, x1),
@@ -334,10 +383,11 @@ fn trend_svg(d: &ReportData) -> String {
         .collect();
     c.line(&med, "#1f5fa8", 2.0);
     c.points(&med, "#1f5fa8");
-    c.hline(
+    c.hline_labelled(
         0.07,
         "#c98a00",
         "0.07 mm: new-joint limit / onset of chaotic shimmy",
+        true,
     );
     c.hline(0.1, "#c0262d", "0.1 mm: replace");
     c.render()
@@ -370,7 +420,7 @@ fn trace_svgs(w: &WorstEvent, rank: usize) -> (String, String) {
         * 1.1;
     let mut c = svg::Chart::new(
         &format!(
-            "#{rank}: steering-wheel angle, braking from {:.0} km/h at {:.2} g",
+            "#{rank}: steering wheel, {:.0} km/h at {:.2} g",
             e.v0_kmh, e.decel_g
         ),
         "time from brake onset (s)",
@@ -432,12 +482,14 @@ pub fn html(d: &ReportData) -> String {
         "replace" => "#c0262d",
         "inspect" => "#d9822b",
         "ok" => "#2e8540",
+        "undecided" => "#3a6ea5",
         _ => "#666666",
     };
     let label = match d.verdict.condition.as_str() {
         "replace" => "REPLACE JOINTS",
         "inspect" => "INSPECT NOW",
         "ok" => "OK",
+        "undecided" => "KEEP MONITORING",
         _ => "NOT ENOUGH DATA",
     };
     let _ = write!(
@@ -469,8 +521,11 @@ td.l,th.l{{text-align:left}} .small{{color:#555;font-size:13px}} .alert{{backgro
             opt(e.interval_mm.map(|i| i[1]), 3)
         ),
         Some(e) if e.below_mm.is_some() => format!(
-            "below the detection limit: <b>below {} mm</b>",
-            opt(e.below_mm, 2)
+            "<b>below {} mm</b> (90 % interval {} – {} mm; the lower end is under the detection limit, \
+             so a new joint is not excluded)",
+            opt(e.below_mm, 2),
+            opt(e.interval_mm.map(|i| i[0]), 3),
+            opt(e.interval_mm.map(|i| i[1]), 3)
         ),
         _ => "not estimated".into(),
     };

@@ -136,7 +136,14 @@ impl Chart {
         );
     }
 
+    /// A dashed horizontal line at `y` with its label above the line's right end.
     pub fn hline(&mut self, y: f64, color: &str, label: &str) {
+        self.hline_labelled(y, color, label, false);
+    }
+
+    /// [`Self::hline`] with the label above (`below = false`) or below the line, so two close
+    /// lines keep readable labels.
+    pub fn hline_labelled(&mut self, y: f64, color: &str, label: &str, below: bool) {
         let py = self.py(y);
         let _ = write!(
             self.body,
@@ -144,7 +151,7 @@ impl Chart {
             ml = ML,
             xr = self.w - MR,
             tx = self.w - MR - 2.0,
-            ty = py - 4.0,
+            ty = if below { py + 12.0 } else { py - 4.0 },
             l = esc(label)
         );
     }
