@@ -183,8 +183,12 @@ fn clearance_alert_0p12mm_raised() {
 
 /// The same drive as `clearance_alert_0p12mm_raised` with other random draws (road, sensor
 /// noise, unbalance phases): 0.12 mm is close to the 0.1 mm limit, so 24 braking events are
-/// about what it takes (2026-12-01: seed 12 ends at P(c > 0.1 mm) = 0.906, seed 14 at 0.928,
-/// medians 0.173 / 0.180 mm: the nominal vehicle reads high against the nuisance mixture).
+/// about what it takes, and whether it is enough depends on the draw (2026-12-01, `shimmy
+/// estimate` on this drive: seeds 12, 14, 16 end at P(c > 0.1 mm) = 0.906, 0.928, 0.954 and
+/// raise the alert; seeds 15 and 17 end at 0.836 and 0.692 and do not; the seeds differ only in
+/// the unbalance phases and the road-noise realisation, which move the true steering-wheel
+/// amplitude by ±15 %). Seeds 12 (the scenario's) and 14 (chosen on 2026-11-22 as the case
+/// that failed then) are the ones tested.
 #[test]
 fn clearance_alert_0p12mm_seed14_raised() {
     clearance_alert_follows_truth_seeded("worn_0p12mm", Some(14));
