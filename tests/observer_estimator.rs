@@ -7,7 +7,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use shimmy::observer::estimator::{Estimator, EstimatorConfig};
 use shimmy::observer::sensor::SensorModel;
-use shimmy::observer::table::{Cell, ResponseTable, FORMAT_V2};
+use shimmy::observer::table::{Cell, ResponseTable, FORMAT, FORMAT_V2};
 use shimmy::observer::ObserverConfig;
 
 /// A law with a floor like MODEL.md §13's steering wheel: rms = sqrt(0.04² + (0.25·c·s)²) with
@@ -18,6 +18,34 @@ fn law(c_mm: f64, v_kmh: f64) -> (f64, f64) {
     (rms.ln(), (2.2 * rms).ln())
 }
 const SPREAD: f64 = 0.15;
+
+/// A validated synthetic table over these axes: format v3 when the cells carry the cruise
+/// statistic (non-zero spread), else the v2 layout of braking features only.
+fn synthetic(
+    clearance_mm: Vec<f64>,
+    speed_kmh: Vec<f64>,
+    decel_g: Vec<f64>,
+    vehicles: u32,
+    cells: Vec<Cell>,
+) -> ResponseTable {
+    let cruise = cells.iter().all(|c| c.cruise[1] > 0.0);
+    let t = ResponseTable {
+        format: if cruise { FORMAT } else { FORMAT_V2 }.into(),
+        vehicle_hash: "0123456789abcdef".into(),
+        sensor: SensorModel::default(),
+        clearance_mm,
+        speed_kmh,
+        decel_g,
+        vehicles,
+        seeds: 1,
+        cruise,
+        cells,
+        amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
+        provenance: "synthetic".into(),
+    };
+    t.validate().unwrap();
+    t
+}
 
 fn table() -> ResponseTable {
     let nc = 25;
@@ -41,23 +69,7 @@ fn table() -> ResponseTable {
             }
         }
     }
-    let t = ResponseTable {
-        // Synthetic braking features only: the v2 layout (no cruise statistic).
-        format: FORMAT_V2.into(),
-        vehicle_hash: "0123456789abcdef".into(),
-        sensor: SensorModel::default(),
-        clearance_mm,
-        speed_kmh,
-        decel_g,
-        vehicles: 1,
-        seeds: 1,
-        cruise: false,
-        cells,
-        amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
-        provenance: "synthetic".into(),
-    };
-    t.validate().unwrap();
-    t
+    synthetic(clearance_mm, speed_kmh, decel_g, 1, cells)
 }
 
 /// Draws one event's (rms, peak) from the law with correlated log-normal noise.
@@ -224,23 +236,7 @@ fn nuisance_table(deltas: &[f64], pooled_spread: Option<f64>) -> ResponseTable {
             }
         }
     }
-    let t = ResponseTable {
-        // Synthetic braking features only: the v2 layout (no cruise statistic).
-        format: FORMAT_V2.into(),
-        vehicle_hash: "0123456789abcdef".into(),
-        sensor: SensorModel::default(),
-        clearance_mm,
-        speed_kmh,
-        decel_g,
-        vehicles: deltas.len() as u32,
-        seeds: 1,
-        cruise: false,
-        cells,
-        amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
-        provenance: "synthetic".into(),
-    };
-    t.validate().unwrap();
-    t
+    synthetic(clearance_mm, speed_kmh, decel_g, deltas.len() as u32, cells)
 }
 
 const VEHICLE_SPREAD: f64 = 0.3;
@@ -346,7 +342,6 @@ fn an_old_single_distribution_table_still_loads() {
 /// the same table without it must stay undecided.
 #[test]
 fn the_cruise_statistic_separates_what_the_braking_amplitude_confuses() {
-    use shimmy::observer::table::FORMAT;
     let clearance_mm: Vec<f64> = (0..8)
         .map(|i| 0.03 * (0.4f64 / 0.03).powf(i as f64 / 7.0))
         .collect();
@@ -354,7 +349,13 @@ fn the_cruise_statistic_separates_what_the_braking_amplitude_confuses() {
     let decel_g = vec![0.5];
     // Braking RMS (deg): vehicle 0 at c equals vehicle 1 at 4c.
     let brake = |c: f64, m: usize| 0.03 + 0.4 * if m == 0 { 4.0 * c } else { c };
-    let cruise = |c: f64, m: usize| if m == 0 { 0.15 } else { 0.15 / (1.0 + 40.0 * c) };
+    let cruise = |c: f64, m: usize| {
+        if m == 0 {
+            0.15
+        } else {
+            0.15 / (1.0 + 40.0 * c)
+        }
+    };
     let mut cells = Vec::new();
     for &c in &clearance_mm {
         for m in 0..2 {
@@ -369,21 +370,7 @@ fn the_cruise_statistic_separates_what_the_braking_amplitude_confuses() {
             }
         }
     }
-    let t = ResponseTable {
-        format: FORMAT.into(),
-        vehicle_hash: "0123456789abcdef".into(),
-        sensor: SensorModel::default(),
-        clearance_mm,
-        speed_kmh,
-        decel_g,
-        vehicles: 2,
-        seeds: 1,
-        cruise: true,
-        cells,
-        amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
-        provenance: "synthetic".into(),
-    };
-    t.validate().unwrap();
+    let t = synthetic(clearance_mm, speed_kmh, decel_g, 2, cells);
     // Vehicle 1 with 0.25 mm joints: braking RMS 0.13 deg, cruise 0.014 deg (noise-free).
     let run = |use_cruise: bool| {
         let cfg = EstimatorConfig {
@@ -400,7 +387,10 @@ fn the_cruise_statistic_separates_what_the_braking_amplitude_confuses() {
     };
     let (p_with, s_with) = run(true);
     let (p_without, _) = run(false);
-    assert!(p_with > 0.99, "with the cruise statistic: P(c > 0.1) = {p_with}, {s_with:?}");
+    assert!(
+        p_with > 0.99,
+        "with the cruise statistic: P(c > 0.1) = {p_with}, {s_with:?}"
+    );
     assert!(
         (0.15..0.4).contains(&s_with.median_mm),
         "median {} for a true 0.25 mm",

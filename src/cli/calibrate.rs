@@ -135,7 +135,7 @@ fn mean2(z: &[[f64; 2]]) -> [f64; 2] {
 /// `sqrt(1 + 1/per_group)` for the error of a cell mean estimated from `per_group` events (the
 /// predictive spread of a new event). Returns (std, corr), std floored at [`MIN_STD`].
 fn pooled_spread(res: &[[f64; 2]], groups: usize, per_group: usize) -> ([f64; 2], f64) {
-    let dof = (res.len() as f64 - groups as f64).max(1.0);
+    let dof = pooled_dof(res.len(), groups);
     let v0 = res.iter().map(|r| r[0] * r[0]).sum::<f64>() / dof;
     let v1 = res.iter().map(|r| r[1] * r[1]).sum::<f64>() / dof;
     let c = res.iter().map(|r| r[0] * r[1]).sum::<f64>() / dof;
@@ -144,11 +144,28 @@ fn pooled_spread(res: &[[f64; 2]], groups: usize, per_group: usize) -> ([f64; 2]
     } else {
         0.0
     };
-    let k = (1.0 + 1.0 / per_group.max(1) as f64).sqrt();
     (
-        [(v0.sqrt() * k).max(MIN_STD), (v1.sqrt() * k).max(MIN_STD)],
+        [predictive_std(v0, per_group), predictive_std(v1, per_group)],
         corr,
     )
+}
+
+/// [`pooled_spread`] of one feature (the cruise statistic, independent of the other two).
+fn pooled_std(res: &[f64], groups: usize, per_group: usize) -> f64 {
+    let v = res.iter().map(|r| r * r).sum::<f64>() / pooled_dof(res.len(), groups);
+    predictive_std(v, per_group)
+}
+
+/// Degrees of freedom of `n` residuals about `groups` fitted means.
+fn pooled_dof(n: usize, groups: usize) -> f64 {
+    (n as f64 - groups as f64).max(1.0)
+}
+
+/// The predictive spread of a new event from the residual variance `v` about cell means of
+/// `per_group` events, floored at [`MIN_STD`].
+fn predictive_std(v: f64, per_group: usize) -> f64 {
+    let k = (1.0 + 1.0 / per_group.max(1) as f64).sqrt();
+    (v.sqrt() * k).max(MIN_STD)
 }
 
 /// Re-fits the cell means of `t` (already averaged over deceleration) with the additive vehicle
@@ -405,30 +422,26 @@ pub fn build_table(
     let per_clearance = nm * nv * nd;
     for ic in 0..grid.clearance_mm.len() {
         let cell0 = ic * per_clearance;
-        let res: Vec<[f64; 2]> = (0..per_clearance)
-            .flat_map(|k| {
-                let m = t.cells[cell0 + k].mean;
-                z_all[(cell0 + k) * ns..(cell0 + k + 1) * ns]
-                    .iter()
-                    .map(move |z| [z[0] - m[0], z[1] - m[1]])
-            })
-            .collect();
+        // Residuals of the braking features and of the cruise statistic (its mean is per
+        // vehicle and speed, averaged over deceleration like the others).
+        let mut res = Vec::with_capacity(per_clearance * ns);
+        let mut res_c = Vec::with_capacity(per_clearance * ns);
+        for k in cell0..cell0 + per_clearance {
+            let cell = &t.cells[k];
+            for (z, zc) in z_all[k * ns..(k + 1) * ns]
+                .iter()
+                .zip(&zc_all[k * ns..(k + 1) * ns])
+            {
+                res.push([z[0] - cell.mean[0], z[1] - cell.mean[1]]);
+                res_c.push(zc - cell.cruise[0]);
+            }
+        }
         let (std, corr) = pooled_spread(&res, nm * nv, nd * ns);
-        // The cruise statistic: the same pooling, one dimension (its mean is per vehicle and
-        // speed, averaged over deceleration like the others).
-        let res_c: Vec<[f64; 2]> = (0..per_clearance)
-            .flat_map(|k| {
-                let m = t.cells[cell0 + k].cruise[0];
-                zc_all[(cell0 + k) * ns..(cell0 + k + 1) * ns]
-                    .iter()
-                    .map(move |z| [z - m, z - m])
-            })
-            .collect();
-        let (std_c, _) = pooled_spread(&res_c, nm * nv, nd * ns);
+        let std_c = pooled_std(&res_c, nm * nv, nd * ns);
         for c in &mut t.cells[cell0..cell0 + per_clearance] {
             c.std = std;
             c.corr = corr;
-            c.cruise[1] = std_c[0];
+            c.cruise[1] = std_c;
         }
     }
     if grid.additive {

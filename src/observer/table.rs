@@ -202,7 +202,11 @@ impl ResponseTable {
             bail!("a {FORMAT_V1} has one pooled nuisance distribution (vehicles = 1)");
         }
         if self.cruise != (self.format == FORMAT) {
-            bail!("a `{}` table must have cruise = {}", self.format, !self.cruise);
+            bail!(
+                "a `{}` table must have cruise = {}",
+                self.format,
+                !self.cruise
+            );
         }
         let want =
             self.clearance_mm.len() * self.n_vehicles() * self.speed_kmh.len() * self.decel_g.len();
@@ -286,40 +290,27 @@ impl ResponseTable {
             self.speed_kmh.len(),
             self.decel_g.len(),
         );
-        for k in 0..2 {
+        for k in 0..self.n_features() {
             for im in 0..nm {
                 for iv in 0..nv {
                     let mut y: Vec<f64> = (0..nc)
                         .map(|ic| {
                             (0..nd)
-                                .map(|id| self.cell(ic, im, iv, id).mean[k])
+                                .map(|id| self.cell(ic, im, iv, id).feat_mean(k))
                                 .sum::<f64>()
                                 / nd as f64
                         })
                         .collect();
-                    isotonic_in_place(&mut y);
+                    // The cruise statistic (k = 2) is not monotone in clearance.
+                    if k < 2 {
+                        isotonic_in_place(&mut y);
+                    }
                     for (ic, &m) in y.iter().enumerate() {
                         for id in 0..nd {
                             let i = self.idx(ic, im, iv, id);
-                            self.cells[i].mean[k] = m;
+                            let sd = self.cells[i].feat_std(k);
+                            self.cells[i].set_feat(k, m, sd);
                         }
-                    }
-                }
-            }
-        }
-        if !self.cruise {
-            return;
-        }
-        for im in 0..nm {
-            for iv in 0..nv {
-                for ic in 0..nc {
-                    let m = (0..nd)
-                        .map(|id| self.cell(ic, im, iv, id).cruise[0])
-                        .sum::<f64>()
-                        / nd as f64;
-                    for id in 0..nd {
-                        let i = self.idx(ic, im, iv, id);
-                        self.cells[i].cruise[0] = m;
                     }
                 }
             }
