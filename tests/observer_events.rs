@@ -270,7 +270,6 @@ fn an_event_longer_than_the_ring_is_closed_and_flagged_truncated() {
     assert_eq!(ev[0].unused_reason, Some(Unused::Truncated));
 }
 
-
 fn features(d: &Drive) -> shimmy::observer::features::Features {
     features_with(d, EventConfig::default())
 }
@@ -358,9 +357,17 @@ fn the_cruise_feature_measures_the_steering_before_the_brake_only() {
         ..Drive::default()
     });
     let want = 0.5 / 2f64.sqrt();
-    let cruise = f.cruise_rms_deg.expect("2 s pre-roll holds a cruise window");
-    assert!((cruise - want).abs() < 0.1 * want, "cruise rms {cruise}, want {want}");
-    assert!(f.rms_deg < 0.1 * want, "braking window leaks the cruise: {f:?}");
+    let cruise = f
+        .cruise_rms_deg
+        .expect("2 s pre-roll holds a cruise window");
+    assert!(
+        (cruise - want).abs() < 0.1 * want,
+        "cruise rms {cruise}, want {want}"
+    );
+    assert!(
+        f.rms_deg < 0.1 * want,
+        "braking window leaks the cruise: {f:?}"
+    );
     // ... and the other way round (a brake-induced rattle on worn joints).
     let g = features(&Drive {
         amp_deg: 0.5,

@@ -757,7 +757,10 @@ decel_g = 0.5
         let sc = Scenario::parse(&with("5e-4"), "test").unwrap();
         assert_eq!(sc.control_steps(), 5);
         // Absent: the 1 ms trace interval, 10 steps of the default 1e-4 s grid.
-        assert_eq!(Scenario::parse(MINIMAL, "test").unwrap().control_steps(), 10);
+        assert_eq!(
+            Scenario::parse(MINIMAL, "test").unwrap().control_steps(),
+            10
+        );
         let fine = format!("step_s = 1e-5\n{MINIMAL}");
         assert_eq!(Scenario::parse(&fine, "test").unwrap().control_steps(), 100);
         for bad in ["1.5e-4", "3e-4", "2e-3", "5e-5", "-1e-3"] {

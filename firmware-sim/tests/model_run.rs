@@ -86,11 +86,17 @@ fn control_period_coarsens_only_the_driver_and_sampling() {
     let with = |extra: &str| SHORT.replace("seed = 11", &format!("seed = 11\n{extra}"));
     let (a, ta) = run(SHORT);
     let (b, tb) = run(&with("control_period_s = 1e-3"));
-    assert!(a == b && ta == tb, "the default is not control_period_s = 1e-3");
+    assert!(
+        a == b && ta == tb,
+        "the default is not control_period_s = 1e-3"
+    );
     // Every model step (the reference bookkeeping): deterministic, and the same drive.
     let (c, tc) = run(&with("control_period_s = 1e-4"));
     let (d, _) = run(&with("control_period_s = 1e-4"));
-    assert!(c == d, "same seed, different logs with control_period_s = step_s");
+    assert!(
+        c == d,
+        "same seed, different logs with control_period_s = step_s"
+    );
     assert!(a != c, "control_period_s was not used");
     let truth = |t: &str| -> serde_json::Value { serde_json::from_str(t).unwrap() };
     let (ta, tc) = (truth(&ta), truth(&tc));

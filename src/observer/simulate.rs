@@ -197,7 +197,11 @@ pub fn simulate_event(
     // Drive shape: the driver's pedal (firmware-sim's drive.rs law).
     let a_max = decel_g * g;
     let dt_ctl = sc.h_s * stride as f64;
-    let mut onset = if accel > 0.0 { f64::INFINITY } else { onset_est };
+    let mut onset = if accel > 0.0 {
+        f64::INFINITY
+    } else {
+        onset_est
+    };
     let mut cruise_from: Option<f64> = (accel <= 0.0).then_some(0.0);
     let mut demand = 0.0f64;
     let mut t_stop: Option<f64> = None;
