@@ -82,6 +82,12 @@ pub struct FleetArgs {
     /// an earlier run with the same seed base, vehicles and events) instead of simulating it.
     #[arg(long, requires = "work_dir")]
     pub reuse: bool,
+    /// Give every vehicle this clearance (mm, both joints) instead of the drawn one. Its
+    /// nuisances and drive stay those of its seed, so two runs with the same seeds and two
+    /// values are twin fleets: the same vehicles on the same roads with other joints (the
+    /// identifiability check of docs/ACCURACY.md). Use a separate --work-dir per value.
+    #[arg(long, value_name = "MM")]
+    pub clearance_mm: Option<f64>,
 }
 
 /// What the scores need from a vehicle's ground truth, kept next to its log for --reuse.
@@ -107,6 +113,8 @@ pub struct VehicleResult {
     pub detectable: bool,
     pub below_mm: Option<f64>,
     pub clearance_alert: bool,
+    /// Posterior P(c > the clearance threshold) at the end of the drive.
+    pub p_clearance_above_threshold: Option<f64>,
     pub shimmy_alert: bool,
     /// Mean true steering-wheel amplitude of events starting at 50–60 km/h (deg).
     pub true_sw_55_deg: Option<f64>,
@@ -184,6 +192,15 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
         let text = std::fs::read_to_string(&eval_path)?;
         let e: EvalTruth = serde_json::from_str(&text)
             .with_context(|| format!("{} is not a fleet eval file", eval_path.display()))?;
+        if let Some(c) = args.clearance_mm {
+            if e.clearance_true_mm != c {
+                anyhow::bail!(
+                    "{} is for clearance {} mm, not --clearance-mm {c}",
+                    eval_path.display(),
+                    e.clearance_true_mm
+                );
+            }
+        }
         if e.seed != seed || e.events != args.events {
             anyhow::bail!(
                 "{} is for seed {} with {} events, not seed {seed} with {}",
@@ -197,7 +214,7 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
     }
     let plan = vehicle_plan(seed, args.events);
     let (c_mm, p, noise, events) = (
-        plan.clearance_mm,
+        args.clearance_mm.unwrap_or(plan.clearance_mm),
         plan.params,
         plan.road_noise_nm,
         plan.events,
@@ -304,6 +321,7 @@ fn result(
         detectable: r.detectable,
         below_mm: r.below_mm,
         clearance_alert: r.alerts.iter().any(|a| a.kind == "clearance"),
+        p_clearance_above_threshold: r.p_clearance_above_threshold,
         shimmy_alert: r.alerts.iter().any(|a| a.kind == "shimmy_55kmh"),
         events_55: amps.len(),
         true_sw_55_deg: if amps.is_empty() {
@@ -395,6 +413,11 @@ fn frac((a, b): (usize, usize)) -> String {
 }
 
 pub fn run(args: FleetArgs) -> anyhow::Result<()> {
+    if let Some(c) = args.clearance_mm {
+        if !(c.is_finite() && c > 0.0 && c <= 2.0) {
+            anyhow::bail!("--clearance-mm must be in (0, 2] mm, not {c}");
+        }
+    }
     let table = ResponseTable::load(&args.table)?;
     table
         .check_vehicle(&shimmy::observer::table::vehicle_hash(
@@ -529,5 +552,61 @@ mod tests {
         let t = vehicle_scenario(3, 0.1, "v.toml", 2e-3, 0.2, &[(55.0, 0.5), (80.0, 0.3)]);
         let sc = Scenario::parse(&t, "test").unwrap();
         assert_eq!(sc.drive.segments.len(), 4);
+    }
+
+    fn args(extra: &[&str], dir: &Path) -> FleetArgs {
+        use clap::Parser;
+        let mut a = vec![
+            "fleet",
+            "--table",
+            "unused.json",
+            "--vehicles",
+            "1",
+            "--events",
+            "1",
+        ];
+        a.extend_from_slice(&["--seed-base", "4242", "--work-dir", dir.to_str().unwrap()]);
+        a.extend_from_slice(extra);
+        FleetArgs::parse_from(a)
+    }
+
+    /// `--clearance-mm` makes a twin: the same vehicle (nuisances) and the same drive as the
+    /// drawn fleet, with only the joints changed.
+    #[test]
+    fn a_twin_vehicle_differs_only_in_its_clearance() {
+        let base = std::env::temp_dir().join(format!("fleet-twin-{}", std::process::id()));
+        let (da, db) = (base.join("drawn"), base.join("twin"));
+        std::fs::create_dir_all(&da).unwrap();
+        std::fs::create_dir_all(&db).unwrap();
+        let (_, ea) = vehicle_log(0, &args(&[], &da), &da).unwrap();
+        let (_, eb) = vehicle_log(0, &args(&["--clearance-mm", "0.25"], &db), &db).unwrap();
+        assert_eq!(ea.clearance_true_mm, vehicle_plan(4242, 1).clearance_mm);
+        assert_eq!(eb.clearance_true_mm, 0.25);
+        let read = |d: &Path, f: &str| std::fs::read_to_string(d.join(f)).unwrap();
+        assert_eq!(
+            read(&da, "vehicle_4242.toml"),
+            read(&db, "vehicle_4242.toml")
+        );
+        let (sa, sb) = (read(&da, "fleet_4242.toml"), read(&db, "fleet_4242.toml"));
+        assert_ne!(sa, sb);
+        fn strip(s: &str) -> Vec<&str> {
+            s.lines().filter(|l| !l.starts_with("left_mm")).collect()
+        }
+        assert_eq!(strip(&sa), strip(&sb));
+        // --reuse refuses a log made for another clearance.
+        let e = vehicle_log(0, &args(&["--clearance-mm", "0.3", "--reuse"], &db), &db).unwrap_err();
+        assert!(e.to_string().contains("not --clearance-mm 0.3"), "{e}");
+        std::fs::remove_dir_all(&base).unwrap();
+    }
+
+    #[test]
+    fn an_impossible_twin_clearance_is_refused_before_any_work() {
+        let d = std::env::temp_dir();
+        let e = run(args(&["--clearance-mm=-1"], &d)).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("--clearance-mm must be in (0, 2] mm"),
+            "{e}"
+        );
     }
 }
