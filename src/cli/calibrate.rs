@@ -106,6 +106,15 @@ pub struct Args {
     /// vehicle), whose vehicle × speed remainder is added to the event spread.
     #[arg(long)]
     pub per_vehicle: bool,
+
+    /// Emulated nuisance vehicles (0 = off): fit each feature's dependence on the drawn
+    /// vehicles' nuisance parameters (linear regression per clearance and speed, see
+    /// src/observer/emulate.rs) and write N new vehicles drawn from the same prior with the
+    /// fit's predictions as their means and the fit's residual as the event spread. The table
+    /// then has N vehicles; --per-vehicle does not apply. Needs VEHICLES × decels × SEEDS above
+    /// 9 per clearance and speed.
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub emulate: u32,
 }
 
 /// Smallest spread of ln(feature) stored in a cell.
@@ -287,6 +296,8 @@ pub struct Grid {
     pub seed_base: u64,
     /// Fit the additive vehicle model ([`fit_additive`]) to the cell means.
     pub additive: bool,
+    /// Emulated vehicles written instead of the drawn ones (0 = off, [`crate::observer::emulate`]).
+    pub emulate: u32,
 }
 
 impl Grid {
@@ -391,6 +402,9 @@ pub fn build_table(
         })
         .collect();
     let amp = amp_map(&mut pairs, 24);
+    if grid.emulate > 0 {
+        return emulated_table(vehicle, grid, &ranges, &vehicles, &z_all, &zc_all, amp);
+    }
     let mut t = ResponseTable {
         format: FORMAT.into(),
         vehicle_hash: vehicle_hash(vehicle)?,
@@ -454,6 +468,87 @@ pub fn build_table(
     Ok(t)
 }
 
+/// The table of `grid.emulate` emulated vehicles ([`crate::observer::emulate`]) fitted on the
+/// drawn `vehicles`' events (`z_all`, `zc_all` in job order), made monotone in clearance.
+#[allow(clippy::too_many_arguments)]
+fn emulated_table(
+    vehicle: &VehicleParams,
+    grid: &Grid,
+    ranges: &NuisanceRanges,
+    vehicles: &[VehicleParams],
+    z_all: &[[f64; 2]],
+    zc_all: &[f64],
+    amp_map: Vec<[f64; 2]>,
+) -> anyhow::Result<ResponseTable> {
+    use crate::observer::emulate::{coords, draw_coords, emulate_cells, RawEvent};
+    let (nm, nv, nd, ns) = (
+        grid.vehicles as usize,
+        grid.speed_kmh.len(),
+        grid.decel_g.len(),
+        grid.seeds as usize,
+    );
+    let raw: Vec<RawEvent> = z_all
+        .iter()
+        .zip(zc_all)
+        .enumerate()
+        .map(|(j, (z, &zc))| {
+            let k = j / ns;
+            RawEvent {
+                ic: k / (nd * nv * nm),
+                im: (k / (nd * nv)) % nm,
+                iv: (k / nd) % nv,
+                decel_g: grid.decel_g[k % nd],
+                z: [z[0], z[1], zc],
+            }
+        })
+        .collect();
+    let table_coords: Vec<_> = vehicles
+        .iter()
+        .map(|v| coords(vehicle, v, ranges))
+        .collect();
+    let synth = draw_coords(grid.emulate as usize, grid.seed_base);
+    let cells = emulate_cells(
+        &raw,
+        &table_coords,
+        grid.clearance_mm.len(),
+        nv,
+        &grid.decel_g,
+        &synth,
+        MIN_STD,
+    )?;
+    let t = ResponseTable {
+        format: FORMAT.into(),
+        vehicle_hash: vehicle_hash(vehicle)?,
+        sensor: SensorModel::default(),
+        clearance_mm: grid.clearance_mm.clone(),
+        speed_kmh: grid.speed_kmh.clone(),
+        decel_g: grid.decel_g.clone(),
+        vehicles: grid.emulate,
+        seeds: grid.seeds,
+        cruise: true,
+        cells,
+        amp_map,
+        provenance: format!(
+            "shimmy calibrate {}; {} emulated vehicles fitted on {} drawn nuisance vehicles \
+             (unbalance x{:?}, stiffness/damping ±{:.0} %, road noise x{:?}), {} events per \
+             vehicle and cell, shape {:?}, seed_base {}",
+            env!("CARGO_PKG_VERSION"),
+            grid.emulate,
+            grid.vehicles,
+            ranges.unbalance_factor,
+            ranges.stiffness_damping_rel * 100.0,
+            ranges.road_noise_factor,
+            grid.seeds,
+            grid.shape,
+            grid.seed_base
+        ),
+    };
+    // Not `smooth()`: the regression already pools the seed noise, and it keeps the
+    // deceleration term that smoothing would average away.
+    t.validate()?;
+    Ok(t)
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     let vehicle = super::estimate::load_vehicle(args.vehicle.as_deref())?;
     let cfg = match &args.config {
@@ -502,6 +597,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
         seed_base: args.seed_base,
         additive: !args.per_vehicle,
+        emulate: args.emulate,
     };
     eprintln!(
         "shimmy calibrate: {} model runs on {threads} threads",

@@ -13,6 +13,7 @@
 //! [`Report`]. What it is not: CAN decoding (that is [`crate::signals`]) or the model.
 
 pub mod alerts;
+pub mod emulate;
 pub mod estimator;
 pub mod features;
 pub mod sensor;

@@ -1,0 +1,290 @@
+//! Emulated nuisance vehicles for the response table (`shimmy calibrate --emulate N`).
+//!
+//! What it is: a regression of each table feature on the vehicle's nuisance parameters, fitted
+//! on the simulated events of the table's M drawn vehicles, and used to predict the features of
+//! N new vehicles drawn from the same prior. What it is not: a model of the physics (the
+//! shimmy model in `crate::model` makes the data) or part of the estimator (which only sees
+//! the table's cells).
+//!
+//! Why: the drawn vehicles' cell means rest on one chaotic event each. The additive vehicle
+//! model (`fit_additive`) de-noises them by giving each vehicle one offset for all speeds, and
+//! moves the vehicle × speed interaction into the event spread: 0.24 (ln RMS) where one known
+//! vehicle's events scatter by 0.11–0.14 around its own means (measured, docs/ACCURACY.md
+//! "What limits the estimate"). A likelihood that wide cannot tell 0.15 mm from 0.1 mm.
+//!
+//! The fit, per clearance c, initial speed v and feature f ∈ {ln RMS, ln peak, cruise} (the
+//! statistics of `features::z` / `features::z_cruise`, MODEL.md §11):
+//!
+//!   z_f = β₀ + β_d·(d − 0.55)/0.25 + Σ_j β_j·ξ_j + ε,   ε ~ N(0, σ²_{c,f}),
+//!
+//! over the M vehicles × decelerations d (one event per cell), with the nuisance coordinates
+//! ξ ∈ [−1, 1]⁷ of [`coords`]: the five steering stiffnesses and dampings (k_s, c_s, k_t,
+//! k_g, c_g, MODEL.md §9) as (p/p₀ − 1)/rel, the unbalance as ln(u/u₀)/ln(√(hi/lo)) about the
+//! prior's geometric centre, and the road-noise factor mapped linearly. On the shipped table
+//! the linear fit explains 97 % of the vehicles' mean offsets (c_s and the unbalance
+//! dominate). σ is pooled over speeds per clearance and feature; ln RMS and ln peak keep their
+//! residual correlation. N vehicles are then drawn uniformly in ξ (the prior of
+//! [`super::simulate::NuisanceRanges`] in these coordinates, fixed seed) and their cells get
+//! the regression's predictions.
+//!
+//! Memory and time: one small least-squares problem per (c, v, f); the table grows to
+//! N × clearances × speeds × decelerations cells.
+
+use nalgebra::{DMatrix, DVector};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::simulate::NuisanceRanges;
+use super::table::Cell;
+use crate::model::VehicleParams;
+
+/// Number of nuisance coordinates.
+pub const N_COORDS: usize = 7;
+/// Regressors: intercept, deceleration, the coordinates.
+pub const N_REGRESSORS: usize = 2 + N_COORDS;
+
+/// The nuisance coordinates ξ ∈ [−1, 1]⁷ of vehicle `v` drawn around `nominal` with `r`.
+pub fn coords(nominal: &VehicleParams, v: &VehicleParams, r: &NuisanceRanges) -> [f64; N_COORDS] {
+    let (a, b) = (&nominal.steering, &v.steering);
+    let rel = r.stiffness_damping_rel.max(1e-12);
+    let f = |p0: f64, p: f64| (p / p0 - 1.0) / rel;
+    let (ulo, uhi) = r.unbalance_factor;
+    let u_half = 0.5 * (uhi / ulo).ln().max(1e-12);
+    let u_mid = 0.5 * (uhi * ulo).ln();
+    let (nlo, nhi) = r.road_noise_factor;
+    let n_factor = v.excitation.noise_std_nm / nominal.excitation.noise_std_nm;
+    [
+        f(
+            a.kingpin_stiffness_nm_per_rad,
+            b.kingpin_stiffness_nm_per_rad,
+        ),
+        f(a.kingpin_damping_nms_per_rad, b.kingpin_damping_nms_per_rad),
+        f(a.tie_rod_stiffness_n_per_m, b.tie_rod_stiffness_n_per_m),
+        f(a.restraint_stiffness_n_per_m, b.restraint_stiffness_n_per_m),
+        f(a.restraint_damping_ns_per_m, b.restraint_damping_ns_per_m),
+        ((v.excitation.unbalance_kgm / nominal.excitation.unbalance_kgm).ln() - u_mid) / u_half,
+        (2.0 * n_factor - nlo - nhi) / (nhi - nlo).max(1e-12),
+    ]
+}
+
+/// `n` vehicles drawn uniformly over [−1, 1]⁷ (the prior in [`coords`]), from `seed`.
+pub fn draw_coords(n: usize, seed: u64) -> Vec<[f64; N_COORDS]> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(13);
+    (0..n)
+        .map(|_| std::array::from_fn(|_| rng.random_range(-1.0..=1.0)))
+        .collect()
+}
+
+fn regressors(xi: &[f64; N_COORDS], decel_g: f64) -> [f64; N_REGRESSORS] {
+    let mut r = [0.0; N_REGRESSORS];
+    r[0] = 1.0;
+    r[1] = (decel_g - 0.55) / 0.25;
+    r[2..].copy_from_slice(xi);
+    r
+}
+
+/// One simulated table event: grid indices and its three statistics (ln RMS, ln peak, cruise).
+#[derive(Clone, Copy, Debug)]
+pub struct RawEvent {
+    pub ic: usize,
+    pub im: usize,
+    pub iv: usize,
+    pub decel_g: f64,
+    pub z: [f64; 3],
+}
+
+/// Least squares `x·β ≈ y`; returns β and the residuals.
+fn lstsq(x: &DMatrix<f64>, y: &DVector<f64>) -> anyhow::Result<(DVector<f64>, DVector<f64>)> {
+    let svd = x.clone().svd(true, true);
+    let beta = svd
+        .solve(y, 1e-10)
+        .map_err(|e| anyhow::anyhow!("emulator least squares: {e}"))?;
+    let res = y - x * &beta;
+    Ok((beta, res))
+}
+
+/// Fits the regression on `raw` (the drawn vehicles' events, with their coordinates
+/// `table_coords[im]`) and returns the cells of the `synth` vehicles in the table's cell order
+/// (clearance, vehicle, speed, deceleration), for `decels` grid decelerations.
+pub fn emulate_cells(
+    raw: &[RawEvent],
+    table_coords: &[[f64; N_COORDS]],
+    n_clearance: usize,
+    n_speed: usize,
+    decels: &[f64],
+    synth: &[[f64; N_COORDS]],
+    min_std: f64,
+) -> anyhow::Result<Vec<Cell>> {
+    let (nc, nv, nd, ns) = (n_clearance, n_speed, decels.len(), synth.len());
+    let mut cells = vec![
+        Cell {
+            mean: [0.0; 2],
+            std: [1.0; 2],
+            corr: 0.0,
+            cruise: [0.0, 1.0],
+        };
+        nc * ns * nv * nd
+    ];
+    let idx = |ic: usize, j: usize, iv: usize, id: usize| ((ic * ns + j) * nv + iv) * nd + id;
+    for ic in 0..nc {
+        let mut rss = [0.0f64; 3];
+        let mut cross = 0.0f64;
+        let mut dof = 0.0f64;
+        for iv in 0..nv {
+            let rows: Vec<&RawEvent> = raw.iter().filter(|e| e.ic == ic && e.iv == iv).collect();
+            if rows.len() <= N_REGRESSORS {
+                anyhow::bail!(
+                    "--emulate needs more than {N_REGRESSORS} events per clearance and speed \
+                     (vehicles × decelerations × seeds), not {}",
+                    rows.len()
+                );
+            }
+            let x = DMatrix::from_fn(rows.len(), N_REGRESSORS, |i, k| {
+                regressors(&table_coords[rows[i].im], rows[i].decel_g)[k]
+            });
+            let mut res_f = Vec::with_capacity(3);
+            for (f, rss_f) in rss.iter_mut().enumerate() {
+                let y = DVector::from_fn(rows.len(), |i, _| rows[i].z[f]);
+                let (beta, res) = lstsq(&x, &y)?;
+                *rss_f += res.norm_squared();
+                for (j, xi) in synth.iter().enumerate() {
+                    for (id, &d) in decels.iter().enumerate() {
+                        let r = regressors(xi, d);
+                        let m: f64 = r.iter().zip(beta.iter()).map(|(a, b)| a * b).sum();
+                        let c = &mut cells[idx(ic, j, iv, id)];
+                        match f {
+                            0 | 1 => c.mean[f] = round5(m),
+                            _ => c.cruise[0] = round5(m),
+                        }
+                    }
+                }
+                res_f.push(res);
+            }
+            cross += res_f[0].dot(&res_f[1]);
+            dof += (rows.len() - N_REGRESSORS) as f64;
+        }
+        let s = rss.map(|r| (r / dof).sqrt().max(min_std));
+        let corr = (cross / dof / (s[0] * s[1])).clamp(-0.95, 0.95);
+        for j in 0..ns {
+            for iv in 0..nv {
+                for id in 0..nd {
+                    let c = &mut cells[idx(ic, j, iv, id)];
+                    c.std = [round5(s[0]), round5(s[1])];
+                    c.corr = round5(corr);
+                    c.cruise[1] = round5(s[2]);
+                }
+            }
+        }
+    }
+    Ok(cells)
+}
+
+/// Five decimals of a ln-statistic (1e-5 relative in the feature) keep the table file small.
+fn round5(x: f64) -> f64 {
+    (x * 1e5).round() / 1e5
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::observer::simulate::perturb_vehicle;
+
+    #[test]
+    fn coordinates_of_drawn_vehicles_fill_the_unit_cube() {
+        let nom = VehicleParams::default();
+        let r = NuisanceRanges::default();
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let mut lo = [f64::INFINITY; N_COORDS];
+        let mut hi = [f64::NEG_INFINITY; N_COORDS];
+        for _ in 0..400 {
+            let v = perturb_vehicle(&nom, &r, &mut rng);
+            for (k, x) in coords(&nom, &v, &r).into_iter().enumerate() {
+                lo[k] = lo[k].min(x);
+                hi[k] = hi[k].max(x);
+            }
+        }
+        for k in 0..N_COORDS {
+            assert!(
+                lo[k] >= -1.0 - 1e-9 && hi[k] <= 1.0 + 1e-9,
+                "coord {k}: {lo:?} {hi:?}"
+            );
+            assert!(
+                lo[k] < -0.9 && hi[k] > 0.9,
+                "coord {k} does not span the prior"
+            );
+        }
+        assert_eq!(coords(&nom, &nom, &r)[1], 0.0);
+    }
+
+    /// Data made by a known linear law plus noise: the emulated cells carry the law's
+    /// prediction for new vehicles and the noise's spread.
+    #[test]
+    fn the_fit_recovers_a_linear_law_and_its_noise() {
+        let m = 60;
+        let table = draw_coords(m, 1);
+        let synth = draw_coords(5, 2);
+        let decels = [0.3, 0.8];
+        let law = |ic: usize, iv: usize, f: usize, xi: &[f64; N_COORDS], d: f64| {
+            -3.0 + 0.4 * ic as f64 + 0.1 * iv as f64 - 0.3 * xi[1]
+                + 0.2 * xi[5]
+                + 0.05 * d
+                + 0.1 * f as f64
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut raw = Vec::new();
+        for ic in 0..2 {
+            for (im, xi) in table.iter().enumerate() {
+                for iv in 0..3 {
+                    for &d in &decels {
+                        let z = std::array::from_fn(|f| {
+                            let g: f64 = (0..12).map(|_| rng.random::<f64>()).sum::<f64>() - 6.0;
+                            law(ic, iv, f, xi, d) + 0.1 * g
+                        });
+                        raw.push(RawEvent {
+                            ic,
+                            im,
+                            iv,
+                            decel_g: d,
+                            z,
+                        });
+                    }
+                }
+            }
+        }
+        let cells = emulate_cells(&raw, &table, 2, 3, &decels, &synth, 0.05).unwrap();
+        assert_eq!(cells.len(), 2 * 5 * 3 * 2);
+        let (nv, nd) = (3, 2);
+        for ic in 0..2 {
+            for (j, xi) in synth.iter().enumerate() {
+                for iv in 0..3 {
+                    for (id, &d) in decels.iter().enumerate() {
+                        let c = &cells[((ic * 5 + j) * nv + iv) * nd + id];
+                        for f in 0..3 {
+                            let got = if f < 2 { c.mean[f] } else { c.cruise[0] };
+                            assert!((got - law(ic, iv, f, xi, d)).abs() < 0.08, "{got}");
+                        }
+                        assert!((c.std[0] - 0.1).abs() < 0.02, "{:?}", c.std);
+                        assert!((c.cruise[1] - 0.1).abs() < 0.02);
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn too_few_events_is_an_error_not_a_fit() {
+        let table = draw_coords(3, 1);
+        let raw: Vec<RawEvent> = (0..3)
+            .map(|im| RawEvent {
+                ic: 0,
+                im,
+                iv: 0,
+                decel_g: 0.3,
+                z: [0.0; 3],
+            })
+            .collect();
+        let e = emulate_cells(&raw, &table, 1, 1, &[0.3], &draw_coords(2, 2), 0.05).unwrap_err();
+        assert!(e.to_string().contains("--emulate needs more than"), "{e}");
+    }
+}
