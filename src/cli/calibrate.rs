@@ -417,18 +417,7 @@ pub fn build_table(
         cruise: true,
         cells: std::mem::take(&mut cells),
         amp_map: amp,
-        provenance: format!(
-            "shimmy calibrate {}; {} nuisance vehicles (unbalance x{:?}, stiffness/damping ±{:.0} %, \
-             road noise x{:?}), {} events per vehicle and cell, shape {:?}, seed_base {}",
-            env!("CARGO_PKG_VERSION"),
-            grid.vehicles,
-            ranges.unbalance_factor,
-            ranges.stiffness_damping_rel * 100.0,
-            ranges.road_noise_factor,
-            grid.seeds,
-            grid.shape,
-            grid.seed_base
-        ),
+        provenance: provenance(grid, &ranges),
     };
     // Means: averaged over deceleration, monotone in clearance, per vehicle and speed.
     t.smooth();
@@ -466,6 +455,28 @@ pub fn build_table(
     t.provenance += "; one pooled spread";
     t.validate()?;
     Ok(t)
+}
+
+/// What a table records of how it was built.
+fn provenance(grid: &Grid, ranges: &NuisanceRanges) -> String {
+    let vehicles = match grid.emulate {
+        0 => format!("{} nuisance vehicles", grid.vehicles),
+        n => format!(
+            "{n} emulated vehicles fitted on {} drawn nuisance vehicles",
+            grid.vehicles
+        ),
+    };
+    format!(
+        "shimmy calibrate {}; {vehicles} (unbalance x{:?}, stiffness/damping ±{:.0} %, road noise \
+         x{:?}), {} events per vehicle and cell, shape {:?}, seed_base {}",
+        env!("CARGO_PKG_VERSION"),
+        ranges.unbalance_factor,
+        ranges.stiffness_damping_rel * 100.0,
+        ranges.road_noise_factor,
+        grid.seeds,
+        grid.shape,
+        grid.seed_base
+    )
 }
 
 /// The table of `grid.emulate` emulated vehicles ([`crate::observer::emulate`]) fitted on the
@@ -528,20 +539,7 @@ fn emulated_table(
         cruise: true,
         cells,
         amp_map,
-        provenance: format!(
-            "shimmy calibrate {}; {} emulated vehicles fitted on {} drawn nuisance vehicles \
-             (unbalance x{:?}, stiffness/damping ±{:.0} %, road noise x{:?}), {} events per \
-             vehicle and cell, shape {:?}, seed_base {}",
-            env!("CARGO_PKG_VERSION"),
-            grid.emulate,
-            grid.vehicles,
-            ranges.unbalance_factor,
-            ranges.stiffness_damping_rel * 100.0,
-            ranges.road_noise_factor,
-            grid.seeds,
-            grid.shape,
-            grid.seed_base
-        ),
+        provenance: provenance(grid, ranges),
     };
     // Not `smooth()`: the regression already pools the seed noise, and it keeps the
     // deceleration term that smoothing would average away.
