@@ -13,6 +13,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::analysis::sweep::{default_threads, par_map};
 use crate::events::median_in_place;
 use crate::model::VehicleParams;
+use crate::observer::emulate::{coords, draw_coords, emulate_cells, RawEvent};
 use crate::observer::sensor::SensorModel;
 use crate::observer::simulate::{
     perturb_vehicle, simulate_event, EventShape, NuisanceRanges, SimulatedEvent,
@@ -347,18 +348,18 @@ pub fn build_table(
     let mut jobs = Vec::with_capacity(grid.n_events());
     for (ic, &c) in grid.clearance_mm.iter().enumerate() {
         for im in 0..nm {
-            for &v in &grid.speed_kmh {
+            for (iv, &v) in grid.speed_kmh.iter().enumerate() {
                 for &d in &grid.decel_g {
                     for _ in 0..ns {
                         let seed = grid.seed_base + 10_000 + jobs.len() as u64;
-                        jobs.push((ic, c, im, v, d, seed));
+                        jobs.push((ic, c, im, iv, v, d, seed));
                     }
                 }
             }
         }
     }
     let results: Vec<anyhow::Result<SimulatedEvent>> =
-        par_map(&jobs, threads, |&(_, c, im, v, d, seed)| {
+        par_map(&jobs, threads, |&(_, c, im, _, v, d, seed)| {
             simulate_event(
                 &vehicles[im],
                 c * 1e-3,
@@ -373,7 +374,7 @@ pub fn build_table(
     let mut z_all = Vec::with_capacity(jobs.len());
     let mut zc_all = Vec::with_capacity(jobs.len());
     let mut pairs = Vec::with_capacity(jobs.len());
-    for (r, &(_, c, im, v, d, seed)) in results.iter().zip(&jobs) {
+    for (r, &(_, c, im, _, v, d, seed)) in results.iter().zip(&jobs) {
         let e = r
             .as_ref()
             .map_err(|e| anyhow::anyhow!("{e:#}"))
@@ -402,9 +403,6 @@ pub fn build_table(
         })
         .collect();
     let amp = amp_map(&mut pairs, 24);
-    if grid.emulate > 0 {
-        return emulated_table(vehicle, grid, &ranges, &vehicles, &z_all, &zc_all, amp);
-    }
     let mut t = ResponseTable {
         format: FORMAT.into(),
         vehicle_hash: vehicle_hash(vehicle)?,
@@ -419,6 +417,21 @@ pub fn build_table(
         amp_map: amp,
         provenance: provenance(grid, &ranges),
     };
+    if grid.emulate > 0 {
+        let raw: Vec<RawEvent> = jobs
+            .iter()
+            .zip(z_all.iter().zip(&zc_all))
+            .map(|(&(ic, _, im, iv, _, d, _), (z, &zc))| RawEvent {
+                ic,
+                im,
+                iv,
+                decel_g: d,
+                z: [z[0], z[1], zc],
+            })
+            .collect();
+        emulate_into(&mut t, &raw, vehicle, &vehicles, &ranges, grid)?;
+        return Ok(t);
+    }
     // Means: averaged over deceleration, monotone in clearance, per vehicle and speed.
     t.smooth();
     // Spread of one vehicle's events about its smoothed means, pooled per clearance.
@@ -479,72 +492,34 @@ fn provenance(grid: &Grid, ranges: &NuisanceRanges) -> String {
     )
 }
 
-/// The table of `grid.emulate` emulated vehicles ([`crate::observer::emulate`]) fitted on the
-/// drawn `vehicles`' events (`z_all`, `zc_all` in job order), made monotone in clearance.
-#[allow(clippy::too_many_arguments)]
-fn emulated_table(
-    vehicle: &VehicleParams,
-    grid: &Grid,
-    ranges: &NuisanceRanges,
+/// Replaces the drawn vehicles of `t` by `grid.emulate` emulated ones
+/// ([`crate::observer::emulate`]), fitted on the drawn `vehicles`' events `raw`. The means
+/// stay as the fit predicts them: no `smooth()`, because the regression already pools the
+/// seed noise and keeps the deceleration term that smoothing would average away.
+fn emulate_into(
+    t: &mut ResponseTable,
+    raw: &[RawEvent],
+    nominal: &VehicleParams,
     vehicles: &[VehicleParams],
-    z_all: &[[f64; 2]],
-    zc_all: &[f64],
-    amp_map: Vec<[f64; 2]>,
-) -> anyhow::Result<ResponseTable> {
-    use crate::observer::emulate::{coords, draw_coords, emulate_cells, RawEvent};
-    let (nm, nv, nd, ns) = (
-        grid.vehicles as usize,
-        grid.speed_kmh.len(),
-        grid.decel_g.len(),
-        grid.seeds as usize,
-    );
-    let raw: Vec<RawEvent> = z_all
-        .iter()
-        .zip(zc_all)
-        .enumerate()
-        .map(|(j, (z, &zc))| {
-            let k = j / ns;
-            RawEvent {
-                ic: k / (nd * nv * nm),
-                im: (k / (nd * nv)) % nm,
-                iv: (k / nd) % nv,
-                decel_g: grid.decel_g[k % nd],
-                z: [z[0], z[1], zc],
-            }
-        })
-        .collect();
+    ranges: &NuisanceRanges,
+    grid: &Grid,
+) -> anyhow::Result<()> {
     let table_coords: Vec<_> = vehicles
         .iter()
-        .map(|v| coords(vehicle, v, ranges))
+        .map(|v| coords(nominal, v, ranges))
         .collect();
     let synth = draw_coords(grid.emulate as usize, grid.seed_base);
-    let cells = emulate_cells(
-        &raw,
+    t.cells = emulate_cells(
+        raw,
         &table_coords,
         grid.clearance_mm.len(),
-        nv,
+        grid.speed_kmh.len(),
         &grid.decel_g,
         &synth,
         MIN_STD,
     )?;
-    let t = ResponseTable {
-        format: FORMAT.into(),
-        vehicle_hash: vehicle_hash(vehicle)?,
-        sensor: SensorModel::default(),
-        clearance_mm: grid.clearance_mm.clone(),
-        speed_kmh: grid.speed_kmh.clone(),
-        decel_g: grid.decel_g.clone(),
-        vehicles: grid.emulate,
-        seeds: grid.seeds,
-        cruise: true,
-        cells,
-        amp_map,
-        provenance: provenance(grid, ranges),
-    };
-    // Not `smooth()`: the regression already pools the seed noise, and it keeps the
-    // deceleration term that smoothing would average away.
-    t.validate()?;
-    Ok(t)
+    t.vehicles = grid.emulate;
+    t.validate()
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
