@@ -188,18 +188,22 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
     let seed = args.seed_base + k as u64;
     let log = dir.join(format!("fleet_{seed}.log"));
     let eval_path = log.with_extension("eval.json");
+    let plan = vehicle_plan(seed, args.events);
+    let c_mm = args.clearance_mm.unwrap_or(plan.clearance_mm);
     if args.reuse && log.exists() && eval_path.exists() {
         let text = std::fs::read_to_string(&eval_path)?;
         let e: EvalTruth = serde_json::from_str(&text)
             .with_context(|| format!("{} is not a fleet eval file", eval_path.display()))?;
-        if let Some(c) = args.clearance_mm {
-            if e.clearance_true_mm != c {
-                anyhow::bail!(
-                    "{} is for clearance {} mm, not --clearance-mm {c}",
-                    eval_path.display(),
-                    e.clearance_true_mm
-                );
-            }
+        if e.clearance_true_mm != c_mm {
+            let wanted = match args.clearance_mm {
+                Some(c) => format!("--clearance-mm {c}"),
+                None => format!("the seed's drawn {c_mm} mm (a --clearance-mm twin?)"),
+            };
+            anyhow::bail!(
+                "{} is for clearance {} mm, not {wanted}",
+                eval_path.display(),
+                e.clearance_true_mm
+            );
         }
         if e.seed != seed || e.events != args.events {
             anyhow::bail!(
@@ -212,13 +216,7 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
         }
         return Ok((log, e));
     }
-    let plan = vehicle_plan(seed, args.events);
-    let (c_mm, p, noise, events) = (
-        args.clearance_mm.unwrap_or(plan.clearance_mm),
-        plan.params,
-        plan.road_noise_nm,
-        plan.events,
-    );
+    let (p, noise, events) = (plan.params, plan.road_noise_nm, plan.events);
     let vfile = dir.join(format!("vehicle_{seed}.toml"));
     std::fs::write(&vfile, toml::to_string(&p)?)?;
     let text = vehicle_scenario(
@@ -596,6 +594,8 @@ mod tests {
         // --reuse refuses a log made for another clearance.
         let e = vehicle_log(0, &args(&["--clearance-mm", "0.3", "--reuse"], &db), &db).unwrap_err();
         assert!(e.to_string().contains("not --clearance-mm 0.3"), "{e}");
+        let e = vehicle_log(0, &args(&["--reuse"], &db), &db).unwrap_err();
+        assert!(e.to_string().contains("(a --clearance-mm twin?)"), "{e}");
         std::fs::remove_dir_all(&base).unwrap();
     }
 
