@@ -116,6 +116,14 @@ pub struct Args {
     /// 9 per clearance and speed.
     #[arg(long, default_value_t = 0, value_name = "N")]
     pub emulate: u32,
+
+    /// A table for exactly the --vehicle given: no nuisance spread (every drawn vehicle is the
+    /// vehicle itself), so only the event-to-event randomness remains. For diagnosis: with
+    /// --vehicles 1 --seeds 4 --per-vehicle it is the "oracle" of docs/ACCURACY.md, what the
+    /// estimator could do if it knew the vehicle's stiffnesses, dampings, unbalance and road
+    /// noise.
+    #[arg(long)]
+    pub exact_vehicle: bool,
 }
 
 /// Smallest spread of ln(feature) stored in a cell.
@@ -299,6 +307,9 @@ pub struct Grid {
     pub additive: bool,
     /// Emulated vehicles written instead of the drawn ones (0 = off, [`crate::observer::emulate`]).
     pub emulate: u32,
+    /// Nuisance prior: [`NuisanceRanges::default`], or [`NuisanceRanges::NONE`] for
+    /// `--exact-vehicle`.
+    pub ranges: NuisanceRanges,
 }
 
 impl Grid {
@@ -331,7 +342,7 @@ pub fn build_table(
     threads: usize,
 ) -> anyhow::Result<ResponseTable> {
     let sensor = SensorModel::default();
-    let ranges = NuisanceRanges::default();
+    let ranges = grid.ranges;
     if grid.vehicles == 0 || grid.seeds == 0 {
         anyhow::bail!("--vehicles and --seeds must be at least 1");
     }
@@ -430,6 +441,14 @@ pub fn build_table(
             })
             .collect();
         emulate_into(&mut t, &raw, vehicle, &vehicles, &ranges, grid)?;
+        for (ic, c) in grid.clearance_mm.iter().enumerate() {
+            let cell = t.cell(ic, 0, 0, 0);
+            eprintln!(
+                "shimmy calibrate: emulator residual spread at {c:.3} mm: ln RMS {:.3}, ln peak \
+                 {:.3}, cruise {:.3}",
+                cell.std[0], cell.std[1], cell.cruise[1]
+            );
+        }
         return Ok(t);
     }
     // Means: averaged over deceleration, monotone in clearance, per vehicle and speed.
@@ -571,6 +590,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         seed_base: args.seed_base,
         additive: !args.per_vehicle,
         emulate: args.emulate,
+        ranges: if args.exact_vehicle {
+            NuisanceRanges::NONE
+        } else {
+            NuisanceRanges::default()
+        },
     };
     eprintln!(
         "shimmy calibrate: {} model runs on {threads} threads",
@@ -630,6 +654,17 @@ mod tests {
             amp_map: vec![],
             provenance: String::new(),
         }
+    }
+
+    #[test]
+    fn an_exact_vehicle_table_draws_the_vehicle_itself() {
+        let nominal = VehicleParams::default();
+        for im in 0..3 {
+            let v = nuisance_vehicle(&nominal, &NuisanceRanges::NONE, 1_000_000, im);
+            assert_eq!(v, nominal);
+        }
+        let drawn = nuisance_vehicle(&nominal, &NuisanceRanges::default(), 1_000_000, 0);
+        assert_ne!(drawn, nominal);
     }
 
     #[test]

@@ -9,8 +9,8 @@
 //! Why: the drawn vehicles' cell means rest on one chaotic event each. The additive vehicle
 //! model (`fit_additive`) de-noises them by giving each vehicle one offset for all speeds, and
 //! moves the vehicle × speed interaction into the event spread: 0.24 (ln RMS) where one known
-//! vehicle's events scatter by 0.11–0.14 around its own means (measured, docs/ACCURACY.md
-//! "What limits the estimate"). A likelihood that wide cannot tell 0.15 mm from 0.1 mm.
+//! vehicle's events scatter by 0.11–0.23 around its own means (`shimmy calibrate
+//! --exact-vehicle`, docs/ACCURACY.md "What limits the estimate"). A likelihood that wide cannot tell 0.15 mm from 0.1 mm.
 //!
 //! The fit, per clearance c, initial speed v and feature f ∈ {ln RMS, ln peak, cruise} (the
 //! statistics of `features::z` / `features::z_cruise`, MODEL.md §11):
@@ -20,9 +20,7 @@
 //! over the M vehicles × decelerations d (one event per cell), with the nuisance coordinates
 //! ξ ∈ [−1, 1]⁷ of [`coords`]: the five steering stiffnesses and dampings (k_s, c_s, k_t,
 //! k_g, c_g, MODEL.md §9) as (p/p₀ − 1)/rel, the unbalance as ln(u/u₀)/ln(√(hi/lo)) about the
-//! prior's geometric centre, and the road-noise factor mapped linearly. On the shipped table
-//! the linear fit explains 97 % of the vehicles' mean offsets (c_s and the unbalance
-//! dominate). σ is pooled over speeds per clearance and feature; ln RMS and ln peak keep their
+//! prior's geometric centre, and the road-noise factor mapped linearly. σ is pooled over speeds per clearance and feature; ln RMS and ln peak keep their
 //! residual correlation. N vehicles are then drawn uniformly in ξ (the prior of
 //! [`super::simulate::NuisanceRanges`] in these coordinates, fixed seed) and their cells get
 //! the regression's predictions.

@@ -35,6 +35,15 @@ pub struct NuisanceRanges {
     pub road_noise_factor: (f64, f64),
 }
 
+impl NuisanceRanges {
+    /// No nuisance: every drawn vehicle is the nominal one (`shimmy calibrate --exact-vehicle`).
+    pub const NONE: NuisanceRanges = NuisanceRanges {
+        stiffness_damping_rel: 0.0,
+        unbalance_factor: (1.0, 1.0),
+        road_noise_factor: (1.0, 1.0),
+    };
+}
+
 impl Default for NuisanceRanges {
     fn default() -> Self {
         NuisanceRanges {
@@ -55,7 +64,11 @@ pub fn perturb_vehicle(
 ) -> VehicleParams {
     let mut p = perturb(nominal, r, rng);
     let (lo, hi) = r.road_noise_factor;
-    p.excitation.noise_std_nm *= rng.random_range(lo..hi);
+    if hi > lo {
+        p.excitation.noise_std_nm *= rng.random_range(lo..hi);
+    } else {
+        p.excitation.noise_std_nm *= lo;
+    }
     p
 }
 
