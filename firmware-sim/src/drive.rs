@@ -10,6 +10,7 @@
 //! Not here: the vehicle dynamics (the plant integrates `v' = −a_dem`) or any sensor.
 
 use crate::scenario::{Drive, Segment};
+use shimmy::model::braking::driver::{CRUISE_TAU_S, CRUISE_TOL_MPS, JERK_MPS3, V_STANDSTILL_MPS};
 
 /// Standard gravity (m/s²).
 pub const G: f64 = 9.80665;
@@ -17,14 +18,6 @@ pub const G: f64 = 9.80665;
 pub const V_STOP_MPS: f64 = 0.5;
 /// Holding demand while standing (g), faded by the plant like any braking demand.
 const HOLD_DECEL_G: f64 = 0.3;
-/// Speed regarded as standing still (m/s).
-const V_STANDSTILL_MPS: f64 = 0.02;
-/// Time constant of the approach to a cruise speed (s).
-const CRUISE_TAU_S: f64 = 0.6;
-/// Jerk limit on non-braking demand changes (m/s³).
-const JERK_MPS3: f64 = 3.0;
-/// Speed error below which a cruise speed counts as reached (m/s).
-const CRUISE_TOL_MPS: f64 = 0.1;
 
 /// What the driver does at one instant.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

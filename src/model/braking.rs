@@ -4,6 +4,20 @@
 //!
 //! What it is: the longitudinal input law. What it is not: tire force generation (`tire`).
 
+/// The reference driver of firmware-sim's drive cycles (firmware-sim/src/drive.rs). The
+/// response table's events (`observer::simulate`) pull away and cruise by the same law, so
+/// both read these constants from here.
+pub mod driver {
+    /// Speed regarded as standing still (m/s).
+    pub const V_STANDSTILL_MPS: f64 = 0.02;
+    /// Time constant of the approach to a cruise speed (s).
+    pub const CRUISE_TAU_S: f64 = 0.6;
+    /// Jerk limit on non-braking demand changes (m/s³).
+    pub const JERK_MPS3: f64 = 3.0;
+    /// Speed error below which a cruise speed counts as reached (m/s).
+    pub const CRUISE_TOL_MPS: f64 = 0.1;
+}
+
 /// Where the longitudinal demand comes from.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Demand {

@@ -21,6 +21,7 @@ use super::sensor::SensorModel;
 use super::ObserverConfig;
 use crate::analysis::filter::Bandpass;
 use crate::events::{Detector, Sample};
+use crate::model::braking::driver::{CRUISE_TAU_S, CRUISE_TOL_MPS, JERK_MPS3, V_STANDSTILL_MPS};
 use crate::model::rhs::ix;
 use crate::model::{Integrator, Scenario, Simulator, VehicleParams};
 
@@ -137,14 +138,6 @@ pub struct SimulatedEvent {
     pub used: bool,
 }
 
-/// Speed below which the drive shape counts the car as stopped (m/s; firmware-sim's driver).
-const V_STANDSTILL_MPS: f64 = 0.02;
-/// firmware-sim's driver (`drive.rs`): speed-approach time constant (s), demand jerk limit
-/// (m/s³) and the speed tolerance at which a cruise counts as reached (m/s).
-const DRIVER_TAU_S: f64 = 0.6;
-const DRIVER_JERK_MPS3: f64 = 3.0;
-const DRIVER_TOL_MPS: f64 = 0.1;
-
 /// Runs one braking event at (`clearance_m`, `v0_mps`, `decel_g`) with `seed` on vehicle `p`,
 /// started as `shape` says.
 #[allow(clippy::too_many_arguments)]
@@ -170,7 +163,7 @@ pub fn simulate_event(
             let a = accel_g.max(0.0) * g;
             // Pull-away (jerk-limited ramp, first-order approach) plus the cruise.
             let pull = if a > 0.0 {
-                v0_mps / a + a / DRIVER_JERK_MPS3 + 6.0 * DRIVER_TAU_S
+                v0_mps / a + a / JERK_MPS3 + 6.0 * CRUISE_TAU_S
             } else {
                 0.0
             };
@@ -227,7 +220,7 @@ pub fn simulate_event(
                 hold_s, cruise_s, ..
             } => {
                 let v = sim.state()[ix::V];
-                if cruise_from.is_none() && (v - v0_mps).abs() <= DRIVER_TOL_MPS {
+                if cruise_from.is_none() && (v - v0_mps).abs() <= CRUISE_TOL_MPS {
                     cruise_from = Some(t);
                 }
                 if let Some(t_c) = cruise_from {
@@ -242,8 +235,8 @@ pub fn simulate_event(
                     None if t < onset => {
                         // firmware-sim's driver: first-order speed approach limited to the
                         // pull-away acceleration, jerk-limited.
-                        let want = ((v - v0_mps) / DRIVER_TAU_S).clamp(-accel, 0.0);
-                        let step = DRIVER_JERK_MPS3 * dt_ctl;
+                        let want = ((v - v0_mps) / CRUISE_TAU_S).clamp(-accel, 0.0);
+                        let step = JERK_MPS3 * dt_ctl;
                         demand += (want - demand).clamp(-step, step);
                         demand
                     }
