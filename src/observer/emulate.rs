@@ -259,7 +259,7 @@ mod tests {
                     for (id, &d) in decels.iter().enumerate() {
                         let c = &cells[((ic * 5 + j) * nv + iv) * nd + id];
                         for f in 0..3 {
-                            let got = if f < 2 { c.mean[f] } else { c.cruise[0] };
+                            let got = c.feat_mean(f);
                             assert!((got - law(ic, iv, f, xi, d)).abs() < 0.08, "{got}");
                         }
                         assert!((c.std[0] - 0.1).abs() < 0.02, "{:?}", c.std);
