@@ -112,9 +112,8 @@ pub struct Args {
     /// vehicles' nuisance parameters (linear regression per clearance and speed, see
     /// src/observer/emulate.rs) and write N new vehicles drawn from the same prior with the
     /// fit's predictions as their means and the fit's residual as the event spread. The table
-    /// then has N vehicles; --per-vehicle does not apply. Needs VEHICLES × decels × SEEDS above
-    /// 9 per clearance and speed.
-    #[arg(long, default_value_t = 0, value_name = "N")]
+    /// then has N vehicles. Needs VEHICLES × decels × SEEDS above 9 per clearance and speed.
+    #[arg(long, default_value_t = 0, value_name = "N", conflicts_with_all = ["refit", "per_vehicle"])]
     pub emulate: u32,
 
     /// A table for exactly the --vehicle given: no nuisance spread (every drawn vehicle is the
@@ -122,7 +121,7 @@ pub struct Args {
     /// --vehicles 1 --seeds 4 --per-vehicle it is the "oracle" of docs/ACCURACY.md, what the
     /// estimator could do if it knew the vehicle's stiffnesses, dampings, unbalance and road
     /// noise.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "refit")]
     pub exact_vehicle: bool,
 }
 
@@ -653,6 +652,32 @@ mod tests {
             cells,
             amp_map: vec![],
             provenance: String::new(),
+        }
+    }
+
+    /// Options that would be silently ignored together are refused by the parser.
+    #[test]
+    fn emulate_and_exact_vehicle_refuse_the_options_they_cannot_honour() {
+        use clap::Parser;
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            args: Args,
+        }
+        let parse = |extra: &[&str]| {
+            let mut a = vec!["calibrate", "--out", "t.json"];
+            a.extend_from_slice(extra);
+            Cli::try_parse_from(a).map(|c| c.args)
+        };
+        assert_eq!(parse(&["--emulate", "120"]).unwrap().emulate, 120);
+        assert!(parse(&["--exact-vehicle"]).unwrap().exact_vehicle);
+        for bad in [
+            &["--emulate", "120", "--per-vehicle"][..],
+            &["--emulate", "120", "--refit", "old.json"],
+            &["--exact-vehicle", "--refit", "old.json"],
+        ] {
+            let e = parse(bad).err().unwrap().to_string();
+            assert!(e.contains("cannot be used with"), "{bad:?}: {e}");
         }
     }
 
