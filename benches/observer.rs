@@ -11,9 +11,12 @@ use std::hint::black_box;
 
 use shimmy::events::Sample;
 use shimmy::observer::estimator::{Estimator, EstimatorConfig};
-use shimmy::observer::sensor::SensorModel;
-use shimmy::observer::table::{Cell, ResponseTable, FORMAT};
+use shimmy::observer::table::{Cell, ResponseTable};
+
+#[path = "../tests/support/synthetic_table.rs"]
+mod synthetic_table;
 use shimmy::observer::{Observer, ObserverConfig};
+use synthetic_table::synthetic;
 
 fn table() -> ResponseTable {
     let clearance_mm: Vec<f64> = (0..12)
@@ -40,20 +43,7 @@ fn table() -> ResponseTable {
             }
         }
     }
-    ResponseTable {
-        format: FORMAT.into(),
-        vehicle_hash: "bench".into(),
-        sensor: SensorModel::default(),
-        clearance_mm,
-        speed_kmh,
-        decel_g,
-        vehicles,
-        seeds: 1,
-        cruise: true,
-        cells,
-        amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
-        provenance: String::new(),
-    }
+    synthetic(clearance_mm, speed_kmh, decel_g, vehicles, cells)
 }
 
 /// One stop from 55 km/h at 0.5 g with 2 s before and after: 100 Hz steering (0.1 deg steps),

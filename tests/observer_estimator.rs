@@ -6,9 +6,12 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use shimmy::observer::estimator::{Estimator, EstimatorConfig};
-use shimmy::observer::sensor::SensorModel;
-use shimmy::observer::table::{Cell, ResponseTable, FORMAT, FORMAT_V2};
+use shimmy::observer::table::{Cell, ResponseTable};
 use shimmy::observer::ObserverConfig;
+
+#[path = "support/synthetic_table.rs"]
+mod synthetic_table;
+use synthetic_table::synthetic;
 
 /// A law with a floor like MODEL.md §13's steering wheel: rms = sqrt(0.04² + (0.25·c·s)²) with
 /// s = min(v/55, 1) (speed matters), peak = 2.2·rms; ln-normal spread 0.15.
@@ -18,34 +21,6 @@ fn law(c_mm: f64, v_kmh: f64) -> (f64, f64) {
     (rms.ln(), (2.2 * rms).ln())
 }
 const SPREAD: f64 = 0.15;
-
-/// A validated synthetic table over these axes: format v3 when the cells carry the cruise
-/// statistic (non-zero spread), else the v2 layout of braking features only.
-fn synthetic(
-    clearance_mm: Vec<f64>,
-    speed_kmh: Vec<f64>,
-    decel_g: Vec<f64>,
-    vehicles: u32,
-    cells: Vec<Cell>,
-) -> ResponseTable {
-    let cruise = cells.iter().all(|c| c.cruise[1] > 0.0);
-    let t = ResponseTable {
-        format: if cruise { FORMAT } else { FORMAT_V2 }.into(),
-        vehicle_hash: "0123456789abcdef".into(),
-        sensor: SensorModel::default(),
-        clearance_mm,
-        speed_kmh,
-        decel_g,
-        vehicles,
-        seeds: 1,
-        cruise,
-        cells,
-        amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
-        provenance: "synthetic".into(),
-    };
-    t.validate().unwrap();
-    t
-}
 
 fn table() -> ResponseTable {
     let nc = 25;
