@@ -1,8 +1,9 @@
 //! Cost of the clearance observer per braking event (issue 5: target under 20 ms on one core
 //! once the response table is built): the detector over one event's samples, the feature
-//! extraction (band-pass, peak, RMS, noise correction) and the posterior update over a table
-//! of the default `shimmy calibrate` grid size (12 clearances x 40 nuisance vehicles x 6 speeds
-//! x 2 decelerations).
+//! extraction (band-pass, peak, RMS, noise correction) and the posterior update, on the
+//! shipped table (config/vehicle/default_table.json) with the default method "linear", and the
+//! method "mixture"'s update on a synthetic table of 12 clearances x 40 nuisance vehicles x 6
+//! speeds x 2 decelerations.
 //!
 //! Run: cargo bench --bench observer
 
@@ -76,31 +77,57 @@ fn event_stream() -> Vec<Sample> {
 }
 
 fn bench(c: &mut Criterion) {
-    let t = table();
+    let shipped = ResponseTable::load(std::path::Path::new("config/vehicle/default_table.json"))
+        .expect("the shipped table (run from the package root)");
+    let t = &shipped;
     let stream = event_stream();
     c.bench_function(
-        "observer: one braking event end to end (detector+features+posterior)",
+        "observer: one braking event end to end (detector+features+posterior, linear)",
         |b| {
-            b.iter(|| {
-                let mut obs = Observer::new(ObserverConfig::default(), Some(t.clone())).unwrap();
-                for s in &stream {
-                    obs.push(black_box(s));
-                }
-                obs.finish();
-                assert_eq!(obs.events().len(), 1);
-                black_box(obs.report().median_mm)
-            })
+            // The observer (and its copy of the table) is made outside the timed part.
+            b.iter_batched(
+                || Observer::new(ObserverConfig::default(), Some(t.clone())).unwrap(),
+                |mut obs| {
+                    for s in &stream {
+                        obs.push(black_box(s));
+                    }
+                    obs.finish();
+                    assert_eq!(obs.events().len(), 1);
+                    black_box(obs.report().median_mm)
+                },
+                criterion::BatchSize::LargeInput,
+            )
         },
     );
-    let mut est = Estimator::new(&t, EstimatorConfig::default()).unwrap();
+    let mut est = Estimator::new(t, EstimatorConfig::default()).unwrap();
     let mut odo = 0.0;
     c.bench_function(
-        "observer: posterior update only (12 clearances x 40 vehicles)",
+        "observer: posterior update only, linear (45 clearances x 9 damping points)",
         |b| {
             b.iter(|| {
                 odo += 1000.0;
                 est.update_event(
-                    &t,
+                    t,
+                    black_box(0.05),
+                    black_box(0.15),
+                    Some(0.03),
+                    57.0,
+                    0.45,
+                    odo,
+                );
+                black_box(est.quantile_mm(0.5))
+            })
+        },
+    );
+    let t = &table();
+    let mut est = Estimator::new(t, EstimatorConfig::mixture()).unwrap();
+    c.bench_function(
+        "observer: posterior update only, mixture (12 clearances x 40 vehicles)",
+        |b| {
+            b.iter(|| {
+                odo += 1000.0;
+                est.update_event(
+                    t,
                     black_box(0.05),
                     black_box(0.15),
                     Some(0.03),

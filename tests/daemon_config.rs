@@ -122,7 +122,7 @@ fn broken_configs_name_the_key_and_the_problem() {
             &["outputs.rotate_mib"],
         ),
         (
-            "std_inflation = 2.0",
+            "std_inflation = 1.0",
             "std_inflation = 0.0",
             &["observer.estimator.std_inflation", "> 0"],
         ),
@@ -132,12 +132,27 @@ fn broken_configs_name_the_key_and_the_problem() {
             &["observer.estimator.features", "all"],
         ),
         (
+            "method = \"linear\"",
+            "method = \"kalman\"",
+            &["observer.estimator.method", "kalman"],
+        ),
+        (
+            "evidence_power = 0.25",
+            "evidence_power = 1.5",
+            &["observer.estimator.evidence_power", "(0, 1]"],
+        ),
+        (
+            "damping_grid = 9",
+            "damping_grid = 0",
+            &["observer.estimator.damping_grid", "1-64"],
+        ),
+        (
             "wear_var_per_km = 0.0001",
             "wear_var_per_km = -1.0",
             &["observer.estimator.wear_var_per_km", ">= 0"],
         ),
         (
-            "std_inflation = 2.0",
+            "std_inflation = 1.0",
             "std_inflaton = 1.0",
             &["unknown field", "std_inflaton"],
         ),
@@ -227,7 +242,7 @@ fn observer_settings_reach_the_config_and_default_to_the_observers() {
     assert!(!c.mqtt.enabled, "MQTT must be off by default");
     assert_eq!(c.observer.estimator, Default::default());
     assert_eq!(c.observer.features, Default::default());
-    let t = default_text().replacen("std_inflation = 2.0", "std_inflation = 1.7", 1);
+    let t = default_text().replacen("std_inflation = 1.0", "std_inflation = 1.7", 1);
     let c = load(&t).unwrap();
     assert_eq!(c.observer.estimator.std_inflation, 1.7);
     // Without an [observer] table at all the observer's defaults apply.

@@ -219,12 +219,12 @@ fn with_a_table_the_shimmy_and_clearance_alerts_follow_the_truth() {
 
     let expected = truth_says_shimmy(&truth, 1, 5);
     assert!(expected, "the demo's 55 km/h event is above 0.2 deg");
-    // A one-vehicle table has no nuisance mixture to widen it: the shipped configs' spread
-    // inflation (tuned for the 40-vehicle table on a dev fleet) would double-count, so this
-    // test states the estimator's settings for its own table.
+    // A one-vehicle table has no linear nuisance model and no nuisance mixture to widen it:
+    // the mixture's tuned spread inflation (for the 40-vehicle table) would double-count, so
+    // this test states the estimator's method and settings for its own table.
     let (events, alerts, estimates, err) = replay_demo_with(
         &format!("table = {table:?}"),
-        "shimmy_confirm = 1\nshimmy_window = 5\n[observer.estimator]\nstd_inflation = 1.0",
+        "shimmy_confirm = 1\nshimmy_window = 5\n[observer.estimator]\nmethod = \"mixture\"\nstd_inflation = 1.0",
     );
     assert!(err.contains("clearance estimate"), "{err}");
     assert_eq!(events.len(), 3, "{events:#?}");

@@ -58,7 +58,7 @@ fn draw(rng: &mut ChaCha8Rng, c_mm: f64, v: f64) -> (f64, f64) {
 
 fn run(c_mm: f64, events: usize, seed: u64) -> Estimator {
     let t = table();
-    let mut e = Estimator::new(&t, EstimatorConfig::default()).unwrap();
+    let mut e = Estimator::new(&t, EstimatorConfig::mixture()).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     for k in 0..events {
         let v = 30.0 + (k % 8) as f64 * 10.0;
@@ -119,7 +119,7 @@ fn posterior_follows_wear_through_the_random_walk() {
     let go = |wear: f64| {
         let cfg = EstimatorConfig {
             wear_var_per_km: wear,
-            ..EstimatorConfig::default()
+            ..EstimatorConfig::mixture()
         };
         let mut e = Estimator::new(&t, cfg).unwrap();
         let mut rng = ChaCha8Rng::seed_from_u64(11);
@@ -233,7 +233,7 @@ fn fleet_coverage(t: &ResponseTable, n: usize, seed: u64) -> (f64, f64) {
                 wear_var_per_km: 0.0,
                 // The synthetic table's spreads are exact: no model mismatch to widen for.
                 std_inflation: 1.0,
-                ..EstimatorConfig::default()
+                ..EstimatorConfig::mixture()
             },
         )
         .unwrap();
@@ -284,7 +284,7 @@ fn vehicle_level_nuisance_gives_honest_intervals_where_independent_events_do_not
 fn the_mixture_learns_which_nuisance_vehicle_it_is() {
     // Two very different nuisance vehicles; the events of one must move the posterior onto it.
     let t = nuisance_table(&[-0.5, 0.5], None);
-    let mut e = Estimator::new(&t, EstimatorConfig::default()).unwrap();
+    let mut e = Estimator::new(&t, EstimatorConfig::mixture()).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     for k in 0..30 {
         // c = 0.2 mm on vehicle 1 (factor e^0.5) at 40 km/h AND 80 km/h: the speed law is the
@@ -351,7 +351,7 @@ fn the_cruise_statistic_separates_what_the_braking_amplitude_confuses() {
         let cfg = EstimatorConfig {
             cruise: use_cruise,
             std_inflation: 1.0,
-            ..EstimatorConfig::default()
+            ..EstimatorConfig::mixture()
         };
         let mut e = Estimator::new(&t, cfg).unwrap();
         for k in 0..20 {

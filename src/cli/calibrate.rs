@@ -13,7 +13,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::analysis::sweep::{default_threads, par_map};
 use crate::events::median_in_place;
 use crate::model::VehicleParams;
-use crate::observer::emulate::{coords, draw_coords, emulate_cells, RawEvent};
+use crate::observer::emulate::{coords, draw_coords, emulate_cells, RawEvent, N_COORDS};
 use crate::observer::sensor::SensorModel;
 use crate::observer::simulate::{
     perturb_vehicle, simulate_event, EventShape, NuisanceRanges, SimulatedEvent,
@@ -39,6 +39,11 @@ use crate::observer::ObserverConfig;
 /// spread around it (pooled per clearance). `shimmy estimate` mixes over the vehicles, so the
 /// nuisances count once per vehicle, not once per event. The table also calibrates the true
 /// steering-wheel amplitude against the measured noise-corrected RMS (shimmy_55kmh alert).
+///
+/// With more than 17 drawn vehicles the table also holds the linear nuisance model the default
+/// estimator method "linear" uses: each feature per clearance and speed as a function of the
+/// seven nuisance coordinates, nonlinear in the kingpin damping, with its event scatter and
+/// per-vehicle misfit (src/observer/linear.rs).
 ///
 /// The table records a hash of the vehicle parameters; `shimmy estimate` refuses a table built
 /// for other parameters. Runs on all cores (SHIMMY_THREADS to limit). Model events:
@@ -70,7 +75,11 @@ pub struct Args {
     pub vehicles: u32,
 
     /// Initial speeds (km/h). Events outside are predicted from the nearest speed.
-    #[arg(long, value_delimiter = ',', default_value = "30,42,55,70,85,100")]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "30,35,40,45,50,55,60,65,70,75,80,85,90,95,100"
+    )]
     pub speeds: Vec<f64>,
 
     /// Decelerations (g).
@@ -426,20 +435,25 @@ pub fn build_table(
         cells: std::mem::take(&mut cells),
         amp_map: amp,
         provenance: provenance(grid, &ranges),
+        linear: None,
     };
+    let raw: Vec<RawEvent> = jobs
+        .iter()
+        .zip(z_all.iter().zip(&zc_all))
+        .map(|(&(ic, _, im, iv, _, d, _), (z, &zc))| RawEvent {
+            ic,
+            im,
+            iv,
+            decel_g: d,
+            z: [z[0], z[1], zc],
+        })
+        .collect();
+    let table_coords: Vec<_> = vehicles
+        .iter()
+        .map(|v| coords(vehicle, v, &ranges))
+        .collect();
     if grid.emulate > 0 {
-        let raw: Vec<RawEvent> = jobs
-            .iter()
-            .zip(z_all.iter().zip(&zc_all))
-            .map(|(&(ic, _, im, iv, _, d, _), (z, &zc))| RawEvent {
-                ic,
-                im,
-                iv,
-                decel_g: d,
-                z: [z[0], z[1], zc],
-            })
-            .collect();
-        emulate_into(&mut t, &raw, vehicle, &vehicles, &ranges, grid)?;
+        emulate_into(&mut t, &raw, &table_coords, grid)?;
         for (ic, c) in grid.clearance_mm.iter().enumerate() {
             let cell = t.cell(ic, 0, 0, 0);
             eprintln!(
@@ -484,6 +498,18 @@ pub fn build_table(
     }
     pool_spread_globally(&mut t);
     t.provenance += "; one pooled spread";
+    // The linear nuisance model needs drawn vehicles spread over the prior, more of them than
+    // its regressors.
+    if nm > crate::observer::linear::N_BASIS && ranges.stiffness_damping_rel > 0.0 {
+        t.linear = Some(crate::observer::linear::fit(
+            &raw,
+            &table_coords,
+            grid.clearance_mm.len(),
+            nv,
+            MIN_STD,
+        )?);
+        t.provenance += "; linear nuisance model";
+    }
     t.validate()?;
     Ok(t)
 }
@@ -517,19 +543,13 @@ fn provenance(grid: &Grid, ranges: &NuisanceRanges) -> String {
 fn emulate_into(
     t: &mut ResponseTable,
     raw: &[RawEvent],
-    nominal: &VehicleParams,
-    vehicles: &[VehicleParams],
-    ranges: &NuisanceRanges,
+    table_coords: &[[f64; N_COORDS]],
     grid: &Grid,
 ) -> anyhow::Result<()> {
-    let table_coords: Vec<_> = vehicles
-        .iter()
-        .map(|v| coords(nominal, v, ranges))
-        .collect();
     let synth = draw_coords(grid.emulate as usize, grid.seed_base);
     t.cells = emulate_cells(
         raw,
-        &table_coords,
+        table_coords,
         grid.clearance_mm.len(),
         grid.speed_kmh.len(),
         &grid.decel_g,
@@ -652,6 +672,7 @@ mod tests {
             cells,
             amp_map: vec![],
             provenance: String::new(),
+            linear: None,
         }
     }
 

@@ -471,6 +471,34 @@ impl Config {
                 e.features
             );
         }
+        if !matches!(e.method.as_str(), "linear" | "mixture") {
+            bail!(
+                "observer.estimator.method: must be \"linear\" or \"mixture\" (got \"{}\")",
+                e.method
+            );
+        }
+        if !(e.evidence_power > 0.0 && e.evidence_power <= 1.0) {
+            bail!(
+                "observer.estimator.evidence_power: must be in (0, 1] (got {})",
+                e.evidence_power
+            );
+        }
+        for (key, v) in [
+            ("misfit_std", e.misfit_std),
+            ("evidence_half_life_km", e.evidence_half_life_km),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                bail!("observer.estimator.{key}: must be >= 0 (got {v})");
+            }
+        }
+        for (key, v) in [
+            ("grid_refine", e.grid_refine),
+            ("damping_grid", e.damping_grid),
+        ] {
+            if !(1..=64).contains(&v) {
+                bail!("observer.estimator.{key}: must be 1-64 (got {v})");
+            }
+        }
         Ok(())
     }
 

@@ -1,5 +1,14 @@
-//! Clearance estimation (issue 5 item 3): a posterior over the response table's clearance grid,
-//! updated by each used braking event and diffused between events for wear.
+//! Clearance estimation (issue 5 item 3): a posterior over a clearance grid, updated by each
+//! used braking event. Two methods (`[estimator] method`):
+//!
+//! * `"linear"` (the default): the vehicle's nuisances integrated out continuously on the
+//!   table's linear nuisance model, on a grid 4× finer than the table's clearances, with
+//!   tempered evidence (`evidence_power`) and fading evidence for wear; see
+//!   [`super::marginal`], which does the work. This module then only keeps the grid marginal
+//!   and its summaries.
+//! * `"mixture"`: a mixture over the table's drawn nuisance vehicles, described below.
+//!
+//! Method "mixture":
 //!
 //! * Vehicle-level nuisances: stiffness, damping, unbalance and road-noise level are the same for
 //!   all of a vehicle's events, so the events are NOT independent given the clearance. The
@@ -25,8 +34,8 @@
 //!   `P(c > threshold)` for the clearance alert, and `detectable = q05 > detection_limit`: when
 //!   the posterior cannot exclude the detection limit the estimate is reported as "below q95".
 //!
-//! Memory: vectors of length (clearances × M), allocated in [`Estimator::new`]; updates do not
-//! allocate.
+//! Memory: vectors of length (clearances × M) for "mixture", the fixed-size statistics of
+//! [`super::marginal`] for "linear", allocated in [`Estimator::new`]; updates do not allocate.
 
 use serde::{Deserialize, Serialize};
 
@@ -48,17 +57,53 @@ pub struct EstimatorConfig {
     pub features: String,
     /// Use the pre-brake cruise statistic when the table has it.
     pub cruise: bool,
+    /// "mixture": over the table's drawn nuisance vehicles (this module); "linear": the
+    /// nuisances marginalised continuously on the table's linear model ([`super::marginal`]).
+    pub method: String,
+    /// Method "linear": grid points per step of the table's clearance axis.
+    pub grid_refine: usize,
+    /// Method "linear": distance (km) over which an event's evidence halves (wear); 0 = never.
+    pub evidence_half_life_km: f64,
+    /// Method "linear": standard deviation (ln units) of a vehicle's offset from the table's
+    /// model in each feature, shared by all its events (model mismatch at vehicle level).
+    pub misfit_std: f64,
+    /// Method "linear": grid points of the kingpin-damping coordinate (1-64).
+    pub damping_grid: usize,
+    /// Method "linear": power on the events' joint likelihood (0 < p ≤ 1). Below 1 it widens
+    /// the posterior without moving its peak: the events count as fewer than they are, for
+    /// what the model misses that is shared between them.
+    pub evidence_power: f64,
 }
 
 impl Default for EstimatorConfig {
+    /// Method "linear" with the settings chosen on dev fleet seeds 90000-90039
+    /// (docs/ACCURACY.md).
     fn default() -> Self {
         EstimatorConfig {
-            std_inflation: 2.0,
+            std_inflation: 1.0,
             outlier_floor: 1e-3,
             wear_var_per_km: 1e-4,
             detection_limit_mm: 0.08,
             features: "both".into(),
             cruise: true,
+            method: "linear".into(),
+            grid_refine: 4,
+            evidence_half_life_km: 5000.0,
+            misfit_std: 0.0,
+            damping_grid: 9,
+            evidence_power: 0.25,
+        }
+    }
+}
+
+impl EstimatorConfig {
+    /// Method "mixture" with its own tuned spread inflation (2.0, dev fleet seeds
+    /// 90000-90013): for tables without the linear model.
+    pub fn mixture() -> Self {
+        EstimatorConfig {
+            method: "mixture".into(),
+            std_inflation: 2.0,
+            ..EstimatorConfig::default()
         }
     }
 }
@@ -77,6 +122,8 @@ pub struct Summary {
 /// The running posterior.
 pub struct Estimator {
     cfg: EstimatorConfig,
+    /// Method "linear": the continuous marginalisation (then `log_p` is unused).
+    linear: Option<super::marginal::LinearPosterior>,
     ln_c: Vec<f64>,
     /// Nuisance vehicles M.
     n_m: usize,
@@ -99,11 +146,56 @@ impl Estimator {
             "both" => (true, true),
             other => anyhow::bail!("estimator.features must be rms, peak or both, not `{other}`"),
         };
-        let n = table.n_clearance();
-        let n_m = table.n_vehicles();
-        let ln_c: Vec<f64> = table.clearance_mm.iter().map(|c| c.ln()).collect();
+        let linear = match cfg.method.as_str() {
+            "mixture" => None,
+            "linear" => {
+                let lm = table.linear.as_ref().ok_or_else(|| {
+                    anyhow::anyhow!(
+                        "estimator.method = \"linear\" needs a response table with a linear \
+                         nuisance model (rebuild it with `shimmy calibrate`)"
+                    )
+                })?;
+                let non_negative = |v: f64| v.is_finite() && v >= 0.0;
+                let ok = non_negative(cfg.evidence_half_life_km)
+                    && non_negative(cfg.misfit_std)
+                    && cfg.std_inflation.is_finite()
+                    && cfg.std_inflation > 0.0
+                    && (1..=64).contains(&cfg.grid_refine)
+                    && (1..=64).contains(&cfg.damping_grid)
+                    && cfg.evidence_power > 0.0
+                    && cfg.evidence_power <= 1.0;
+                if !ok {
+                    anyhow::bail!(
+                        "estimator: grid_refine and damping_grid must be 1-64, std_inflation > 0, \
+                         evidence_power in (0, 1], misfit_std and \
+                         evidence_half_life_km >= 0"
+                    );
+                }
+                Some(super::marginal::LinearPosterior::new(
+                    lm,
+                    &table.clearance_mm,
+                    cfg.grid_refine,
+                    cfg.std_inflation,
+                    cfg.misfit_std,
+                    cfg.evidence_half_life_km,
+                    cfg.damping_grid,
+                    cfg.evidence_power,
+                )?)
+            }
+            other => anyhow::bail!("estimator.method must be mixture or linear, not `{other}`"),
+        };
+        let (n, n_m, ln_c) = match &linear {
+            // The joint vectors are not used: keep them minimal.
+            Some(lp) => (lp.ln_c().len(), 0, lp.ln_c().to_vec()),
+            None => (
+                table.n_clearance(),
+                table.n_vehicles(),
+                table.clearance_mm.iter().map(|c| c.ln()).collect(),
+            ),
+        };
         Ok(Estimator {
-            log_p: vec![-((n * n_m) as f64).ln(); n * n_m],
+            linear,
+            log_p: vec![-((n * n_m.max(1)) as f64).ln(); n * n_m],
             scratch: vec![0.0; n * n_m],
             marg: vec![1.0 / n as f64; n],
             n_m,
@@ -229,14 +321,29 @@ impl Estimator {
         decel_g: f64,
         odometer_m: f64,
     ) {
-        if let Some(prev) = self.last_odometer_m {
-            self.diffuse((odometer_m - prev) / 1000.0);
-        }
+        let dist_km = self
+            .last_odometer_m
+            .map(|prev| (odometer_m - prev) / 1000.0);
         self.last_odometer_m = Some(odometer_m);
         let z = super::features::z(rms_deg, peak_deg);
         let zc = cruise_rms_deg
             .filter(|_| self.cfg.cruise && table.cruise)
             .map(super::features::z_cruise);
+        if let (Some(lp), Some(lm)) = (self.linear.as_mut(), table.linear.as_ref()) {
+            if let Some(d) = dist_km {
+                lp.forget(d);
+            }
+            let mask = [self.use_rms, self.use_peak, zc.is_some()];
+            let z3 = [z[0], z[1], zc.unwrap_or(0.0)];
+            let sp = table.speed_position(v0_kmh);
+            lp.update(lm, table.speed_kmh.len(), z3, &mask, sp, decel_g);
+            lp.probabilities_into(&mut self.marg);
+            self.events_used += 1;
+            return;
+        }
+        if let Some(d) = dist_km {
+            self.diffuse(d);
+        }
         for ic in 0..self.ln_c.len() {
             for im in 0..self.n_m {
                 let p = table.predict(ic, im, v0_kmh, decel_g);

@@ -16,6 +16,8 @@ pub mod alerts;
 pub mod emulate;
 pub mod estimator;
 pub mod features;
+pub mod linear;
+pub mod marginal;
 pub mod sensor;
 pub mod simulate;
 pub mod table;

@@ -116,6 +116,10 @@ pub struct ResponseTable {
     /// How the table was built (free text: command, time, nuisances).
     #[serde(default)]
     pub provenance: String,
+    /// The linear nuisance model fitted on the same events ([`super::linear`]), for the
+    /// estimator's method `"linear"`; absent in tables of fewer drawn vehicles than it needs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub linear: Option<super::linear::LinearModel>,
 }
 
 /// FNV-1a 64 of `bytes`, as 16 hex digits. Used for the vehicle-parameter version stamp (not a
@@ -222,6 +226,9 @@ impl ResponseTable {
                 bail!("table cell {k} is not a valid distribution: {c:?}");
             }
         }
+        if let Some(lm) = &self.linear {
+            lm.validate(self.clearance_mm.len(), self.speed_kmh.len())?;
+        }
         Ok(())
     }
 
@@ -246,6 +253,11 @@ impl ResponseTable {
             );
         }
         Ok(())
+    }
+
+    /// Position of `v0_kmh` on the speed axis: index and weight of the next speed (clamped).
+    pub fn speed_position(&self, v0_kmh: f64) -> (usize, f64) {
+        bracket(&self.speed_kmh, v0_kmh)
     }
 
     /// Predicted distribution of z for clearance index `ic` and nuisance vehicle `im` at

@@ -28,6 +28,7 @@ pub fn synthetic(
         cells,
         amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
         provenance: "synthetic".into(),
+        linear: None,
     };
     t.validate().unwrap();
     t

@@ -1,0 +1,183 @@
+//! The estimator's method "linear" (src/observer/marginal.rs) on data drawn from its own model:
+//! a linear nuisance law with event scatter and a per-vehicle misfit. With the model right, its
+//! 90 % intervals must hold the truth about 90 % of the time and its estimates must sit close;
+//! a table without the linear model must be refused, not silently estimated with another
+//! method.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use shimmy::observer::estimator::{Estimator, EstimatorConfig};
+use shimmy::observer::linear::{LinearModel, N_BASIS};
+use shimmy::observer::table::{Cell, ResponseTable};
+
+#[path = "support/synthetic_table.rs"]
+mod synthetic_table;
+use synthetic_table::synthetic;
+
+const CLEARANCES: usize = 9;
+const SPEEDS: [f64; 2] = [30.0, 100.0];
+/// Slopes of (ln RMS, ln peak, cruise) in the seven nuisance coordinates at the low speed; at
+/// the high speed they are [`HIGH_SPEED_SLOPE`] times these, so events at both speeds tell the
+/// nuisances from the clearance (as speed does in the shimmy model).
+const B: [[f64; 7]; 3] = [
+    [0.0, 0.3, 0.0, 0.05, 0.0, 0.2, 0.05],
+    [0.0, 0.3, 0.0, 0.05, 0.0, 0.25, 0.05],
+    [0.1, 0.0, 0.0, 0.0, 0.0, 0.4, 0.1],
+];
+const HIGH_SPEED_SLOPE: f64 = 0.3;
+const EVENT_STD: f64 = 0.15;
+
+fn slope(f: usize, iv: usize, j: usize) -> f64 {
+    B[f][j] * if iv == 0 { 1.0 } else { HIGH_SPEED_SLOPE }
+}
+const MISFIT_STD: f64 = 0.03;
+
+fn clearances() -> Vec<f64> {
+    (0..CLEARANCES)
+        .map(|i| 0.03 * (0.4f64 / 0.03).powf(i as f64 / (CLEARANCES - 1) as f64))
+        .collect()
+}
+
+/// Feature means at ξ = 0: linear in ln c (so the grid's interpolation is exact).
+fn a(c_mm: f64, iv: usize, decel_g: f64) -> [f64; 3] {
+    let l = (c_mm / 0.1).ln();
+    let d = (decel_g - 0.55) / 0.25;
+    [
+        -1.2 + 0.9 * l + 0.1 * iv as f64 + 0.05 * d,
+        -0.4 + 0.9 * l + 0.1 * iv as f64 + 0.05 * d,
+        -2.5 - 0.5 * l + 0.2 * iv as f64,
+    ]
+}
+
+fn table(with_linear: bool) -> ResponseTable {
+    let cl = clearances();
+    let cells = vec![
+        Cell {
+            mean: [-2.0, -1.0],
+            std: [0.2, 0.2],
+            corr: 0.5,
+            cruise: [-2.5, 0.2],
+        };
+        CLEARANCES * SPEEDS.len() * 2
+    ];
+    let mut t = synthetic(cl.clone(), SPEEDS.to_vec(), vec![0.3, 0.8], 1, cells);
+    if with_linear {
+        let mut coef = Vec::new();
+        for &c in &cl {
+            for iv in 0..SPEEDS.len() {
+                let a0 = a(c, iv, 0.55);
+                let a1 = a(c, iv, 0.8);
+                for f in 0..3 {
+                    let mut row = [0.0; N_BASIS];
+                    row[0] = a0[f];
+                    row[1] = a1[f] - a0[f];
+                    for j in 0..7 {
+                        row[2 + j] = slope(f, iv, j);
+                    }
+                    coef.push(row);
+                }
+            }
+        }
+        let v = EVENT_STD * EVENT_STD;
+        let within = [[v, 0.8 * v, 0.0], [0.8 * v, v, 0.0], [0.0, 0.0, v]];
+        let m = MISFIT_STD * MISFIT_STD;
+        let between = [[m, 0.0, 0.0], [0.0, m, 0.0], [0.0, 0.0, m]];
+        t.linear = Some(LinearModel {
+            vehicles: 40,
+            coef,
+            total_std: vec![[0.2; 3]; CLEARANCES],
+            total_corr: vec![0.5; CLEARANCES],
+            within: vec![within; CLEARANCES],
+            between: vec![between; CLEARANCES],
+        });
+    }
+    t.validate().unwrap();
+    t
+}
+
+fn linear_cfg() -> EstimatorConfig {
+    // Data drawn from the model itself: nothing shared between events is missing, so the
+    // events count in full.
+    EstimatorConfig {
+        evidence_power: 1.0,
+        ..EstimatorConfig::default()
+    }
+}
+
+/// One vehicle of clearance `c_mm` with its own nuisances, `events` events; the estimator
+/// after them.
+fn vehicle(t: &ResponseTable, c_mm: f64, events: usize, rng: &mut ChaCha8Rng) -> Estimator {
+    let n = Normal::new(0.0, 1.0).unwrap();
+    let xi: [f64; 7] = std::array::from_fn(|_| rng.random_range(-1.0..=1.0));
+    let eta: [f64; 3] = std::array::from_fn(|_| MISFIT_STD * n.sample(rng));
+    let mut est = Estimator::new(t, linear_cfg()).unwrap();
+    for e in 0..events {
+        let iv = e % 2;
+        let d = if e % 3 == 0 { 0.3 } else { 0.8 };
+        let g1: f64 = n.sample(rng);
+        let g2 = 0.8 * g1 + 0.6 * n.sample(rng);
+        let g3: f64 = n.sample(rng);
+        let am = a(c_mm, iv, d);
+        let z: [f64; 3] = std::array::from_fn(|f| {
+            let s: f64 = (0..7).map(|j| slope(f, iv, j) * xi[j]).sum();
+            am[f] + s + eta[f] + EVENT_STD * [g1, g2, g3][f]
+        });
+        // Invert the floored logs of features::z / z_cruise.
+        let un = |z: f64, floor: f64| ((2.0 * z).exp() - floor * floor).max(1e-12).sqrt();
+        est.update_event(
+            t,
+            un(z[0], 0.02),
+            un(z[1], 0.05),
+            Some(un(z[2], 0.02)),
+            SPEEDS[iv],
+            d,
+            1000.0 * e as f64,
+        );
+    }
+    est
+}
+
+#[test]
+fn intervals_cover_the_truth_and_estimates_sit_close_when_the_model_is_right() {
+    let t = table(true);
+    let mut rng = ChaCha8Rng::seed_from_u64(21);
+    let (mut covered, mut rel_err, n) = (0, 0.0, 80);
+    for _ in 0..n {
+        let c = 0.05 * (6.0f64).powf(rng.random::<f64>());
+        let s = vehicle(&t, c, 30, &mut rng).summary();
+        if s.q05_mm <= c && c <= s.q95_mm {
+            covered += 1;
+        }
+        rel_err += (s.median_mm / c - 1.0).abs() / n as f64;
+    }
+    let cov = covered as f64 / n as f64;
+    assert!((0.8..=0.98).contains(&cov), "coverage {cov}");
+    assert!(rel_err < 0.12, "mean relative error {rel_err}");
+}
+
+#[test]
+fn more_events_narrow_the_interval() {
+    let t = table(true);
+    let width = |events| {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let s = vehicle(&t, 0.15, events, &mut rng).summary();
+        (s.q95_mm / s.q05_mm).ln()
+    };
+    let (w3, w30) = (width(3), width(30));
+    assert!(w30 < 0.6 * w3, "3 events: {w3}, 30 events: {w30}");
+}
+
+#[test]
+fn method_linear_needs_a_table_with_the_linear_model() {
+    let e = Estimator::new(&table(false), linear_cfg())
+        .err()
+        .expect("refused");
+    assert!(e.to_string().contains("linear nuisance model"), "{e}");
+    let bad = EstimatorConfig {
+        method: "kalman".into(),
+        ..EstimatorConfig::default()
+    };
+    let e = Estimator::new(&table(true), bad).err().expect("refused");
+    assert!(e.to_string().contains("mixture or linear"), "{e}");
+}
