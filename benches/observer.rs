@@ -99,46 +99,39 @@ fn bench(c: &mut Criterion) {
             )
         },
     );
-    let mut est = Estimator::new(t, EstimatorConfig::default()).unwrap();
-    let mut odo = 0.0;
-    c.bench_function(
+    update_bench(
+        c,
         "observer: posterior update only, linear (45 clearances x 9 damping points)",
-        |b| {
-            b.iter(|| {
-                odo += 1000.0;
-                est.update_event(
-                    t,
-                    black_box(0.05),
-                    black_box(0.15),
-                    Some(0.03),
-                    57.0,
-                    0.45,
-                    odo,
-                );
-                black_box(est.quantile_mm(0.5))
-            })
-        },
+        t,
+        EstimatorConfig::default(),
     );
-    let t = &table();
-    let mut est = Estimator::new(t, EstimatorConfig::mixture()).unwrap();
-    c.bench_function(
+    update_bench(
+        c,
         "observer: posterior update only, mixture (12 clearances x 40 vehicles)",
-        |b| {
-            b.iter(|| {
-                odo += 1000.0;
-                est.update_event(
-                    t,
-                    black_box(0.05),
-                    black_box(0.15),
-                    Some(0.03),
-                    57.0,
-                    0.45,
-                    odo,
-                );
-                black_box(est.quantile_mm(0.5))
-            })
-        },
+        &table(),
+        EstimatorConfig::mixture(),
     );
+}
+
+/// One 57 km/h, 0.45 g event per iteration, 1 km after the previous one.
+fn update_bench(c: &mut Criterion, name: &str, t: &ResponseTable, cfg: EstimatorConfig) {
+    let mut est = Estimator::new(t, cfg).unwrap();
+    let mut odo = 0.0;
+    c.bench_function(name, |b| {
+        b.iter(|| {
+            odo += 1000.0;
+            est.update_event(
+                t,
+                black_box(0.05),
+                black_box(0.15),
+                Some(0.03),
+                57.0,
+                0.45,
+                odo,
+            );
+            black_box(est.quantile_mm(0.5))
+        })
+    });
 }
 
 criterion_group!(benches, bench);
