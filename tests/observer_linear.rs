@@ -105,13 +105,33 @@ fn linear_cfg() -> EstimatorConfig {
     }
 }
 
-/// One vehicle of clearance `c_mm` with its own nuisances, `events` events; the estimator
-/// after them.
-fn vehicle(t: &ResponseTable, c_mm: f64, events: usize, rng: &mut ChaCha8Rng) -> Estimator {
+/// A vehicle's own nuisances: the seven coordinates and the per-feature misfit.
+struct Nuisances {
+    xi: [f64; 7],
+    eta: [f64; 3],
+}
+
+fn draw_nuisances(rng: &mut ChaCha8Rng) -> Nuisances {
     let n = Normal::new(0.0, 1.0).unwrap();
-    let xi: [f64; 7] = std::array::from_fn(|_| rng.random_range(-1.0..=1.0));
-    let eta: [f64; 3] = std::array::from_fn(|_| MISFIT_STD * n.sample(rng));
-    let mut est = Estimator::new(t, linear_cfg()).unwrap();
+    Nuisances {
+        xi: std::array::from_fn(|_| rng.random_range(-1.0..=1.0)),
+        eta: std::array::from_fn(|_| MISFIT_STD * n.sample(rng)),
+    }
+}
+
+/// `events` events of a vehicle with nuisances `v` and clearance `c_mm`, 1 km apart from
+/// odometer `odo0_m` on, into `est`.
+#[allow(clippy::too_many_arguments)]
+fn drive(
+    est: &mut Estimator,
+    t: &ResponseTable,
+    v: &Nuisances,
+    c_mm: f64,
+    events: usize,
+    odo0_m: f64,
+    rng: &mut ChaCha8Rng,
+) {
+    let n = Normal::new(0.0, 1.0).unwrap();
     for e in 0..events {
         let iv = e % 2;
         let d = if e % 3 == 0 { 0.3 } else { 0.8 };
@@ -120,8 +140,8 @@ fn vehicle(t: &ResponseTable, c_mm: f64, events: usize, rng: &mut ChaCha8Rng) ->
         let g3: f64 = n.sample(rng);
         let am = a(c_mm, iv, d);
         let z: [f64; 3] = std::array::from_fn(|f| {
-            let s: f64 = (0..7).map(|j| slope(f, iv, j) * xi[j]).sum();
-            am[f] + s + eta[f] + EVENT_STD * [g1, g2, g3][f]
+            let s: f64 = (0..7).map(|j| slope(f, iv, j) * v.xi[j]).sum();
+            am[f] + s + v.eta[f] + EVENT_STD * [g1, g2, g3][f]
         });
         // Invert the floored logs of features::z / z_cruise.
         let un = |z: f64, floor: f64| ((2.0 * z).exp() - floor * floor).max(1e-12).sqrt();
@@ -132,10 +152,50 @@ fn vehicle(t: &ResponseTable, c_mm: f64, events: usize, rng: &mut ChaCha8Rng) ->
             Some(un(z[2], 0.02)),
             SPEEDS[iv],
             d,
-            1000.0 * e as f64,
+            odo0_m + 1000.0 * e as f64,
         );
     }
+}
+
+/// One vehicle of clearance `c_mm` with its own nuisances, `events` events; the estimator
+/// after them.
+fn vehicle(t: &ResponseTable, c_mm: f64, events: usize, rng: &mut ChaCha8Rng) -> Estimator {
+    let v = draw_nuisances(rng);
+    let mut est = Estimator::new(t, linear_cfg()).unwrap();
+    drive(&mut est, t, &v, c_mm, events, 0.0, rng);
     est
+}
+
+/// Wear: the same vehicle at 0.05 mm, then 40 000 km later at 0.25 mm. With a 5000 km
+/// half-life the old events have faded (to 2⁻⁸) and the estimate follows the joints. Without fading
+/// (half-life 0) the two drives are pooled and the estimate stays between them.
+#[test]
+fn old_evidence_fades_so_the_estimate_follows_wear() {
+    let t = table(true);
+    let run = |half_life_km: f64| {
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        let v = draw_nuisances(&mut rng);
+        let cfg = EstimatorConfig {
+            evidence_half_life_km: half_life_km,
+            ..linear_cfg()
+        };
+        let mut est = Estimator::new(&t, cfg).unwrap();
+        drive(&mut est, &t, &v, 0.05, 30, 0.0, &mut rng);
+        drive(&mut est, &t, &v, 0.25, 30, 4.0e7, &mut rng);
+        est.summary()
+    };
+    let fading = run(5000.0);
+    assert!(
+        fading.q05_mm <= 0.25
+            && 0.25 <= fading.q95_mm
+            && (fading.median_mm / 0.25 - 1.0).abs() < 0.2,
+        "{fading:?}"
+    );
+    let pooled = run(0.0);
+    assert!(
+        pooled.median_mm < 0.8 * fading.median_mm,
+        "pooled {pooled:?} fading {fading:?}"
+    );
 }
 
 #[test]
