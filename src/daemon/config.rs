@@ -452,53 +452,10 @@ impl Config {
                 f.sensor.noise_deg
             );
         }
-        let e = &self.observer.estimator;
-        positive("observer.estimator.std_inflation", e.std_inflation)?;
-        probability("observer.estimator.outlier_floor", e.outlier_floor)?;
-        if !(e.wear_var_per_km.is_finite() && e.wear_var_per_km >= 0.0) {
-            bail!(
-                "observer.estimator.wear_var_per_km: must be >= 0 (got {})",
-                e.wear_var_per_km
-            );
-        }
-        positive(
-            "observer.estimator.detection_limit_mm",
-            e.detection_limit_mm,
-        )?;
-        if !matches!(e.features.as_str(), "rms" | "peak" | "both") {
-            bail!(
-                "observer.estimator.features: must be \"rms\", \"peak\" or \"both\" (got \"{}\")",
-                e.features
-            );
-        }
-        if !matches!(e.method.as_str(), "linear" | "mixture") {
-            bail!(
-                "observer.estimator.method: must be \"linear\" or \"mixture\" (got \"{}\")",
-                e.method
-            );
-        }
-        if !(e.evidence_power > 0.0 && e.evidence_power <= 1.0) {
-            bail!(
-                "observer.estimator.evidence_power: must be in (0, 1] (got {})",
-                e.evidence_power
-            );
-        }
-        for (key, v) in [
-            ("misfit_std", e.misfit_std),
-            ("evidence_half_life_km", e.evidence_half_life_km),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                bail!("observer.estimator.{key}: must be >= 0 (got {v})");
-            }
-        }
-        for (key, v) in [
-            ("grid_refine", e.grid_refine),
-            ("damping_grid", e.damping_grid),
-        ] {
-            if !(1..=64).contains(&v) {
-                bail!("observer.estimator.{key}: must be 1-64 (got {v})");
-            }
-        }
+        self.observer
+            .estimator
+            .validate()
+            .map_err(|e| anyhow::anyhow!("observer.{e}"))?;
         Ok(())
     }
 

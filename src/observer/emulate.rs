@@ -26,10 +26,10 @@
 //! N × clearances × speeds × decelerations cells.
 
 use nalgebra::{DMatrix, DVector};
-
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use super::linear::round5;
 use super::simulate::NuisanceRanges;
 use super::table::Cell;
 use crate::model::VehicleParams;
@@ -113,10 +113,7 @@ pub fn emulate_cells(
             for iv in 0..n_speed {
                 for &d in decels {
                     let r = super::linear::basis(xi, d);
-                    let m: [f64; 3] = std::array::from_fn(|f| {
-                        let b = &lm.coef[(ic * n_speed + iv) * 3 + f];
-                        round5(r.iter().zip(b.iter()).map(|(a, b)| a * b).sum())
-                    });
+                    let m: [f64; 3] = std::array::from_fn(|f| round5(lm.mean_at(ic, iv, f, &r)));
                     cells.push(Cell {
                         mean: [m[0], m[1]],
                         std: [s[0], s[1]],
@@ -128,11 +125,6 @@ pub fn emulate_cells(
         }
     }
     Ok(cells)
-}
-
-/// Five decimals of a ln-statistic (1e-5 relative in the feature) keep the table file small.
-fn round5(x: f64) -> f64 {
-    (x * 1e5).round() / 1e5
 }
 
 #[cfg(test)]

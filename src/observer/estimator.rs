@@ -97,6 +97,63 @@ impl Default for EstimatorConfig {
 }
 
 impl EstimatorConfig {
+    /// Checks every setting; the error names the key as `estimator.<key>` (shimmyd prefixes
+    /// its `observer.` table).
+    pub fn validate(&self) -> anyhow::Result<()> {
+        let positive = |key: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(anyhow::anyhow!("estimator.{key}: must be > 0 (got {v})"))
+            }
+        };
+        let non_negative = |key: &str, v: f64| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err(anyhow::anyhow!("estimator.{key}: must be >= 0 (got {v})"))
+            }
+        };
+        positive("std_inflation", self.std_inflation)?;
+        if !(self.outlier_floor > 0.0 && self.outlier_floor < 1.0) {
+            anyhow::bail!(
+                "estimator.outlier_floor: must be a probability strictly between 0 and 1 (got {})",
+                self.outlier_floor
+            );
+        }
+        non_negative("wear_var_per_km", self.wear_var_per_km)?;
+        positive("detection_limit_mm", self.detection_limit_mm)?;
+        if !matches!(self.features.as_str(), "rms" | "peak" | "both") {
+            anyhow::bail!(
+                "estimator.features: must be \"rms\", \"peak\" or \"both\" (got \"{}\")",
+                self.features
+            );
+        }
+        if !matches!(self.method.as_str(), "linear" | "mixture") {
+            anyhow::bail!(
+                "estimator.method: must be mixture or linear (got \"{}\")",
+                self.method
+            );
+        }
+        if !(self.evidence_power > 0.0 && self.evidence_power <= 1.0) {
+            anyhow::bail!(
+                "estimator.evidence_power: must be in (0, 1] (got {})",
+                self.evidence_power
+            );
+        }
+        non_negative("misfit_std", self.misfit_std)?;
+        non_negative("evidence_half_life_km", self.evidence_half_life_km)?;
+        for (key, v) in [
+            ("grid_refine", self.grid_refine),
+            ("damping_grid", self.damping_grid),
+        ] {
+            if !(1..=64).contains(&v) {
+                anyhow::bail!("estimator.{key}: must be 1-64 (got {v})");
+            }
+        }
+        Ok(())
+    }
+
     /// Method "mixture" with its own tuned spread inflation (2.0, dev fleet seeds
     /// 90000-90013): for tables without the linear model.
     pub fn mixture() -> Self {
@@ -122,7 +179,7 @@ pub struct Summary {
 /// The running posterior.
 pub struct Estimator {
     cfg: EstimatorConfig,
-    /// Method "linear": the continuous marginalisation (then `log_p` is unused).
+    /// Method "linear": the continuous marginalisation (then the mixture's `log_p` is empty).
     linear: Option<super::marginal::LinearPosterior>,
     ln_c: Vec<f64>,
     /// Nuisance vehicles M.
@@ -140,63 +197,29 @@ pub struct Estimator {
 
 impl Estimator {
     pub fn new(table: &ResponseTable, cfg: EstimatorConfig) -> anyhow::Result<Estimator> {
-        let (use_rms, use_peak) = match cfg.features.as_str() {
-            "rms" => (true, false),
-            "peak" => (false, true),
-            "both" => (true, true),
-            other => anyhow::bail!("estimator.features must be rms, peak or both, not `{other}`"),
+        cfg.validate()?;
+        let (use_rms, use_peak) = (cfg.features != "peak", cfg.features != "rms");
+        let (linear, ln_c, n_m) = if cfg.method == "linear" {
+            let lm = table.linear.as_ref().ok_or_else(|| {
+                anyhow::anyhow!(
+                    "estimator.method = \"linear\" needs a response table with a linear \
+                     nuisance model (rebuild it with `shimmy calibrate`)"
+                )
+            })?;
+            let (ln_c, pos) = super::marginal::fine_grid(&table.clearance_mm, cfg.grid_refine);
+            let lp = super::marginal::LinearPosterior::new(table, lm, pos, &cfg)?;
+            // The mixture's joint vectors stay empty.
+            (Some(lp), ln_c, 0)
+        } else {
+            let ln_c = table.clearance_mm.iter().map(|c| c.ln()).collect();
+            (None, ln_c, table.n_vehicles())
         };
-        let linear = match cfg.method.as_str() {
-            "mixture" => None,
-            "linear" => {
-                let lm = table.linear.as_ref().ok_or_else(|| {
-                    anyhow::anyhow!(
-                        "estimator.method = \"linear\" needs a response table with a linear \
-                         nuisance model (rebuild it with `shimmy calibrate`)"
-                    )
-                })?;
-                let non_negative = |v: f64| v.is_finite() && v >= 0.0;
-                let ok = non_negative(cfg.evidence_half_life_km)
-                    && non_negative(cfg.misfit_std)
-                    && cfg.std_inflation.is_finite()
-                    && cfg.std_inflation > 0.0
-                    && (1..=64).contains(&cfg.grid_refine)
-                    && (1..=64).contains(&cfg.damping_grid)
-                    && cfg.evidence_power > 0.0
-                    && cfg.evidence_power <= 1.0;
-                if !ok {
-                    anyhow::bail!(
-                        "estimator: grid_refine and damping_grid must be 1-64, std_inflation > 0, \
-                         evidence_power in (0, 1], misfit_std and \
-                         evidence_half_life_km >= 0"
-                    );
-                }
-                Some(super::marginal::LinearPosterior::new(
-                    lm,
-                    &table.clearance_mm,
-                    cfg.grid_refine,
-                    cfg.std_inflation,
-                    cfg.misfit_std,
-                    cfg.evidence_half_life_km,
-                    cfg.damping_grid,
-                    cfg.evidence_power,
-                )?)
-            }
-            other => anyhow::bail!("estimator.method must be mixture or linear, not `{other}`"),
-        };
-        let (n, n_m, ln_c) = match &linear {
-            // The joint vectors are not used: keep them minimal.
-            Some(lp) => (lp.ln_c().len(), 0, lp.ln_c().to_vec()),
-            None => (
-                table.n_clearance(),
-                table.n_vehicles(),
-                table.clearance_mm.iter().map(|c| c.ln()).collect(),
-            ),
-        };
+        let n = ln_c.len();
+        let joint = n * n_m;
         Ok(Estimator {
             linear,
-            log_p: vec![-((n * n_m.max(1)) as f64).ln(); n * n_m],
-            scratch: vec![0.0; n * n_m],
+            log_p: vec![-(joint.max(1) as f64).ln(); joint],
+            scratch: vec![0.0; joint],
             marg: vec![1.0 / n as f64; n],
             n_m,
             ln_c,
@@ -329,14 +352,13 @@ impl Estimator {
         let zc = cruise_rms_deg
             .filter(|_| self.cfg.cruise && table.cruise)
             .map(super::features::z_cruise);
-        if let (Some(lp), Some(lm)) = (self.linear.as_mut(), table.linear.as_ref()) {
+        if let Some(lp) = self.linear.as_mut() {
             if let Some(d) = dist_km {
                 lp.forget(d);
             }
             let mask = [self.use_rms, self.use_peak, zc.is_some()];
             let z3 = [z[0], z[1], zc.unwrap_or(0.0)];
-            let sp = table.speed_position(v0_kmh);
-            lp.update(lm, table.speed_kmh.len(), z3, &mask, sp, decel_g);
+            lp.update(z3, &mask, v0_kmh, decel_g);
             lp.probabilities_into(&mut self.marg);
             self.events_used += 1;
             return;

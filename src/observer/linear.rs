@@ -85,18 +85,27 @@ pub struct LinearModel {
 }
 
 /// What the model predicts for one event at one clearance and damping coordinate ξ₁: the
-/// feature means at ξ_j = 0 (j ≠ 1) and η = 0 (`a`), their slopes in the six other coordinates
-/// (`b`, in the order of [`lin_index`]), and the covariances of ε and η.
+/// feature means at ξ_j = 0 (j ≠ 1) and η = 0 (`a`) and their slopes in the six other
+/// coordinates (`b`, in the order of [`lin_index`]). The covariances depend on the clearance
+/// only: [`LinearModel::within_at`], [`LinearModel::between_at`].
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct LinearPrediction {
     pub a: [f64; N_FEAT],
     pub b: [[f64; N_LIN]; N_FEAT],
-    pub within: [[f64; N_FEAT]; N_FEAT],
-    pub between: [[f64; N_FEAT]; N_FEAT],
 }
 
-fn round5(x: f64) -> f64 {
+/// Five decimals of a ln-statistic (1e-5 relative in the feature) keep the table file small.
+pub(crate) fn round5(x: f64) -> f64 {
     (x * 1e5).round() / 1e5
+}
+
+/// A stored 3 × 3 covariance as a matrix.
+pub(crate) fn mat3(a: &[[f64; N_FEAT]; N_FEAT]) -> Matrix3<f64> {
+    Matrix3::from_fn(|i, j| a[i][j])
+}
+
+fn dot(a: &[f64; N_BASIS], b: &[f64; N_BASIS]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
 fn to_arr(m: &Matrix3<f64>) -> [[f64; 3]; 3] {
@@ -175,21 +184,22 @@ pub fn fit(
             cnt_m[*im] += 1;
         }
         total *= dof_scale / n;
+        // Each vehicle's mean residual (vehicles without events here stay at zero, unused).
+        let mean_m: Vec<nalgebra::Vector3<f64>> = sum_m
+            .iter()
+            .zip(&cnt_m)
+            .map(|(s, &k)| nalgebra::Vector3::from(s.map(|x| x / k.max(1) as f64)))
+            .collect();
         let mut w = Matrix3::zeros();
         for (im, r) in &res {
-            let mu = sum_m[*im].map(|s| s / cnt_m[*im] as f64);
-            let d = nalgebra::Vector3::from(std::array::from_fn(|f| r[f] - mu[f]));
+            let d = nalgebra::Vector3::from(*r) - mean_m[*im];
             w += d * d.transpose();
         }
         let used = cnt_m.iter().filter(|&&k| k > 0).count();
         let per_vehicle = n / used.max(1) as f64;
         w *= dof_scale / (n - used as f64).max(1.0);
         let mut b = Matrix3::zeros();
-        for im in 0..nm {
-            if cnt_m[im] == 0 {
-                continue;
-            }
-            let mu = nalgebra::Vector3::from(sum_m[im].map(|s| s / cnt_m[im] as f64));
+        for (mu, _) in mean_m.iter().zip(&cnt_m).filter(|(_, &k)| k > 0) {
             b += mu * mu.transpose();
         }
         b *= dof_scale / used.max(1) as f64;
@@ -234,9 +244,7 @@ impl LinearModel {
             anyhow::bail!("the table's linear model has non-finite coefficients or spreads");
         }
         for (ic, (w, b)) in self.within.iter().zip(&self.between).enumerate() {
-            let w = Matrix3::from_fn(|i, j| w[i][j]);
-            let b = Matrix3::from_fn(|i, j| b[i][j]);
-            if w.cholesky().is_none() || !(0..3).all(|i| b[(i, i)] >= 0.0) {
+            if mat3(w).cholesky().is_none() || !(0..N_FEAT).all(|i| b[i][i] >= 0.0) {
                 anyhow::bail!(
                     "the table's linear model has an invalid covariance at clearance {ic}"
                 );
@@ -245,43 +253,64 @@ impl LinearModel {
         Ok(())
     }
 
+    /// Speeds of the table the model was fitted on.
+    fn n_speed(&self) -> usize {
+        self.coef.len() / (self.within.len() * N_FEAT).max(1)
+    }
+
+    /// The coefficients of feature `f` at grid clearance `ic` and grid speed `iv`.
+    pub fn coef_at(&self, ic: usize, iv: usize, f: usize) -> &[f64; N_BASIS] {
+        &self.coef[(ic * self.n_speed() + iv) * N_FEAT + f]
+    }
+
+    /// The mean of feature `f` at grid clearance `ic` and speed `iv` for the regressors `r`
+    /// ([`basis`]).
+    pub fn mean_at(&self, ic: usize, iv: usize, f: usize, r: &[f64; N_BASIS]) -> f64 {
+        dot(r, self.coef_at(ic, iv, f))
+    }
+
+    /// A clearance-dependent covariance at clearance position `(ic, wc)`, linear in ln c.
+    fn interp(cov: &[[[f64; N_FEAT]; N_FEAT]], (ic, wc): (usize, f64)) -> Matrix3<f64> {
+        let jc = (ic + 1).min(cov.len() - 1);
+        mat3(&cov[ic]) * (1.0 - wc) + mat3(&cov[jc]) * wc
+    }
+
+    /// Covariance of ε (one vehicle's event scatter) at clearance position `(ic, wc)`.
+    pub fn within_at(&self, pos: (usize, f64)) -> Matrix3<f64> {
+        Self::interp(&self.within, pos)
+    }
+
+    /// Covariance of η (the per-vehicle misfit) at clearance position `(ic, wc)`.
+    pub fn between_at(&self, pos: (usize, f64)) -> Matrix3<f64> {
+        Self::interp(&self.between, pos)
+    }
+
     /// The prediction at clearance position `(ic, wc)` (between grid clearances `ic` and
     /// `ic + 1`, weight `wc` on the second, linear in ln c), speed position `(iv, wv)`,
     /// deceleration `decel_g` and damping coordinate `xi1`. No allocation.
     pub fn predict(
         &self,
-        n_speed: usize,
         (ic, wc): (usize, f64),
         (iv, wv): (usize, f64),
         decel_g: f64,
         xi1: f64,
     ) -> LinearPrediction {
-        let nc = self.within.len();
+        let (nc, nv) = (self.within.len(), self.n_speed());
         let mut p = LinearPrediction::default();
         let mut at = [0.0; N_COORDS];
         at[DAMPING] = xi1;
         // The basis at ξ_j = 0 (j ≠ 1) gives the mean; its ξ₁-dependent slopes follow.
         let r = basis(&at, decel_g);
         for (dc, fc) in [(0usize, 1.0 - wc), (1, wc)] {
-            if fc == 0.0 {
-                continue;
-            }
-            let jc = (ic + dc).min(nc - 1);
-            for i in 0..N_FEAT {
-                for j in 0..N_FEAT {
-                    p.within[i][j] += fc * self.within[jc][i][j];
-                    p.between[i][j] += fc * self.between[jc][i][j];
-                }
-            }
             for (dv, fv) in [(0usize, 1.0 - wv), (1, wv)] {
                 let f = fc * fv;
                 if f == 0.0 {
                     continue;
                 }
-                let jv = (iv + dv).min(n_speed - 1);
+                let (jc, jv) = ((ic + dc).min(nc - 1), (iv + dv).min(nv - 1));
                 for k in 0..N_FEAT {
-                    let b = &self.coef[(jc * n_speed + jv) * N_FEAT + k];
-                    p.a[k] += f * r.iter().zip(b.iter()).map(|(x, y)| x * y).sum::<f64>();
+                    let b = self.coef_at(jc, jv, k);
+                    p.a[k] += f * dot(&r, b);
                     for (l, j) in (0..N_COORDS).filter(|&j| j != DAMPING).enumerate() {
                         p.b[k][l] += f * (b[2 + j] + b[4 + N_COORDS + l] * xi1);
                     }
@@ -351,7 +380,7 @@ mod tests {
         let r = lm.between[0][0][1] / (lm.between[0][0][0] * lm.between[0][1][1]).sqrt();
         assert!(r > 0.8, "between correlation {r}");
         // At ξ₁ = 0.8 the mean carries 0.5·ξ₁ − 0.4·ξ₁³ and the slope of ξ₅ is −0.2 + 0.3·ξ₁.
-        let p = lm.predict(3, (0, 0.0), (1, 0.5), 0.55, 0.8);
+        let p = lm.predict((0, 0.0), (1, 0.5), 0.55, 0.8);
         let want = -3.0 + 0.15 + 0.4 - 0.4 * 0.512;
         assert!((p.a[0] - want).abs() < 0.08, "{:?} vs {want}", p.a);
         assert!(

@@ -40,7 +40,9 @@
 
 use nalgebra::{Matrix3, SMatrix, SVector};
 
+use super::estimator::EstimatorConfig;
 use super::linear::{LinearModel, N_FEAT, N_LIN};
+use super::table::{bracket, ResponseTable};
 
 const NX: usize = N_LIN + N_FEAT;
 type MatX = SMatrix<f64, NX, NX>;
@@ -71,10 +73,12 @@ impl Stats {
 /// Which features enter: ln RMS, ln peak, cruise.
 pub type FeatureMask = [bool; N_FEAT];
 
-/// The running posterior of method `"linear"`.
+/// The running posterior of method `"linear"`. It keeps its own copy of the table's linear
+/// model and speed axis, so an update cannot be handed another table's model.
 pub struct LinearPosterior {
-    /// Fine grid: ln c and its position on the table's clearance axis.
-    ln_c: Vec<f64>,
+    model: LinearModel,
+    speed_kmh: Vec<f64>,
+    /// The fine clearance grid's positions on the table's clearance axis ([`fine_grid`]).
     pos: Vec<(usize, f64)>,
     /// The damping coordinate's grid.
     xi1: Vec<f64>,
@@ -103,7 +107,7 @@ fn masked_inverse(m: &Matrix3<f64>, mask: &FeatureMask) -> Option<(Matrix3<f64>,
         }
     }
     let ch = a.cholesky()?;
-    let ld = 2.0 * ch.l_dirty().diagonal().iter().map(|d| d.ln()).sum::<f64>();
+    let ld = ch.ln_determinant();
     let mut inv = ch.inverse();
     for i in 0..N_FEAT {
         if !mask[i] {
@@ -116,49 +120,46 @@ fn masked_inverse(m: &Matrix3<f64>, mask: &FeatureMask) -> Option<(Matrix3<f64>,
     Some((inv, ld))
 }
 
-fn mat3(a: &[[f64; 3]; 3]) -> Matrix3<f64> {
-    Matrix3::from_fn(|i, j| a[i][j])
+/// The fine clearance grid: each log step of `clearance_mm` cut into `refine` parts. Returns ln c
+/// (mm) of each point and its position on the table's axis (index, weight of the next).
+pub fn fine_grid(clearance_mm: &[f64], refine: usize) -> (Vec<f64>, Vec<(usize, f64)>) {
+    let refine = refine.max(1);
+    let n = clearance_mm.len();
+    let mut ln_c = Vec::with_capacity((n - 1) * refine + 1);
+    let mut pos = Vec::with_capacity(ln_c.capacity());
+    for ic in 0..n - 1 {
+        let (a, b) = (clearance_mm[ic].ln(), clearance_mm[ic + 1].ln());
+        for j in 0..refine {
+            let w = j as f64 / refine as f64;
+            ln_c.push(a + w * (b - a));
+            pos.push((ic, w));
+        }
+    }
+    ln_c.push(clearance_mm[n - 1].ln());
+    pos.push((n - 2, 1.0));
+    (ln_c, pos)
 }
 
 impl LinearPosterior {
-    /// A flat posterior over the fine grid of `clearance_mm` refined `refine` times (the
-    /// arguments are the estimator's settings, checked by `Estimator::new`).
-    #[allow(clippy::too_many_arguments)]
+    /// A flat posterior over the grid points `pos` ([`fine_grid`]) of `table`, with the
+    /// estimator settings `cfg` (checked by [`EstimatorConfig::validate`]).
     pub fn new(
+        table: &ResponseTable,
         model: &LinearModel,
-        clearance_mm: &[f64],
-        refine: usize,
-        std_inflation: f64,
-        misfit_std: f64,
-        half_life_km: f64,
-        damping_grid: usize,
-        power: f64,
+        pos: Vec<(usize, f64)>,
+        cfg: &EstimatorConfig,
     ) -> anyhow::Result<LinearPosterior> {
-        let refine = refine.max(1);
-        let nk = damping_grid.max(1);
+        let nk = cfg.damping_grid.max(1);
         let xi1: Vec<f64> = (0..nk)
             .map(|k| -1.0 + (2 * k + 1) as f64 / nk as f64)
             .collect();
-        let n = clearance_mm.len();
-        let mut ln_c = Vec::with_capacity((n - 1) * refine + 1);
-        let mut pos = Vec::with_capacity(ln_c.capacity());
-        for ic in 0..n - 1 {
-            let (a, b) = (clearance_mm[ic].ln(), clearance_mm[ic + 1].ln());
-            for j in 0..refine {
-                let w = j as f64 / refine as f64;
-                ln_c.push(a + w * (b - a));
-                pos.push((ic, w));
-            }
-        }
-        ln_c.push(clearance_mm[n - 1].ln());
-        pos.push((n - 2, 1.0));
-        let inflation2 = std_inflation * std_inflation;
+        let inflation2 = cfg.std_inflation * cfg.std_inflation;
         let mut prior = Vec::with_capacity(pos.len());
-        for &(ic, w) in &pos {
-            let t = (1.0 - w) * mat3(&model.between[ic]) + w * mat3(&model.between[ic + 1]);
+        for &p in &pos {
             // The configured vehicle-level misfit (measured vehicles against the model's), and a
             // small floor that keeps T invertible where the fit found none.
-            let t = (t + Matrix3::identity() * (1e-4 + misfit_std * misfit_std)) * inflation2;
+            let floor = 1e-4 + cfg.misfit_std * cfg.misfit_std;
+            let t = (model.between_at(p) + Matrix3::identity() * floor) * inflation2;
             let ch = t
                 .cholesky()
                 .ok_or_else(|| anyhow::anyhow!("linear model: misfit covariance not positive"))?;
@@ -172,26 +173,21 @@ impl LinearPosterior {
                     lam[(N_LIN + i, N_LIN + j)] = t_inv[(i, j)];
                 }
             }
-            let ld_t = 2.0 * ch.l_dirty().diagonal().iter().map(|d| d.ln()).sum::<f64>();
-            let ld_lam = -(N_LIN as f64) * COORD_VAR.ln() - ld_t;
+            let ld_lam = -(N_LIN as f64) * COORD_VAR.ln() - ch.ln_determinant();
             prior.push((lam, ld_lam));
         }
         Ok(LinearPosterior {
-            stats: vec![Stats::zero(); ln_c.len() * nk],
+            model: model.clone(),
+            speed_kmh: table.speed_kmh.clone(),
+            stats: vec![Stats::zero(); pos.len() * nk],
             scratch: vec![0.0; nk],
             xi1,
-            ln_c,
             pos,
             prior,
             inflation2,
-            half_life_km,
-            power,
+            half_life_km: cfg.evidence_half_life_km,
+            power: cfg.evidence_power,
         })
-    }
-
-    /// The fine grid, ln c (mm).
-    pub fn ln_c(&self) -> &[f64] {
-        &self.ln_c
     }
 
     /// Fades the evidence over `dist_km` of driving.
@@ -209,57 +205,51 @@ impl LinearPosterior {
         }
     }
 
-    /// Adds one event: features `z` (ln RMS, ln peak, cruise; masked ones ignored) at speed
-    /// position `sp` of the table's speed axis (`n_speed` speeds) and deceleration `decel_g`.
-    pub fn update(
-        &mut self,
-        model: &LinearModel,
-        n_speed: usize,
-        z: [f64; N_FEAT],
-        mask: &FeatureMask,
-        sp: (usize, f64),
-        decel_g: f64,
-    ) {
+    /// Adds one event: features `z` (ln RMS, ln peak, cruise; masked ones ignored) at initial
+    /// speed `v0_kmh` and deceleration `decel_g`.
+    pub fn update(&mut self, z: [f64; N_FEAT], mask: &FeatureMask, v0_kmh: f64, decel_g: f64) {
+        let sp = bracket(&self.speed_kmh, v0_kmh);
         let nk = self.xi1.len();
-        for (i, st) in self.stats.iter_mut().enumerate() {
-            let (g, k) = (i / nk, i % nk);
-            let pr = model.predict(n_speed, self.pos[g], sp, decel_g, self.xi1[k]);
-            let sigma = mat3(&pr.within) * self.inflation2;
+        for (g, stats) in self.stats.chunks_mut(nk).enumerate() {
+            // The event scatter depends on the clearance only: one inverse per grid clearance.
+            let sigma = self.model.within_at(self.pos[g]) * self.inflation2;
             let Some((w, ld)) = masked_inverse(&sigma, mask) else {
                 continue;
             };
-            let mut hm = SMatrix::<f64, N_FEAT, NX>::zeros();
-            for f in 0..N_FEAT {
-                for j in 0..N_LIN {
-                    hm[(f, j)] = pr.b[f][j];
+            for (st, &xi1) in stats.iter_mut().zip(&self.xi1) {
+                let pr = self.model.predict(self.pos[g], sp, decel_g, xi1);
+                let mut hm = SMatrix::<f64, N_FEAT, NX>::zeros();
+                for f in 0..N_FEAT {
+                    for j in 0..N_LIN {
+                        hm[(f, j)] = pr.b[f][j];
+                    }
+                    hm[(f, N_LIN + f)] = 1.0;
                 }
-                hm[(f, N_LIN + f)] = 1.0;
+                let r =
+                    nalgebra::Vector3::from_fn(|f, _| if mask[f] { z[f] - pr.a[f] } else { 0.0 });
+                let ht_w = hm.transpose() * w;
+                st.p += ht_w * hm;
+                st.h += ht_w * r;
+                st.s += (r.transpose() * w * r)[(0, 0)];
+                st.ld += ld;
             }
-            let r = nalgebra::Vector3::from_fn(|f, _| if mask[f] { z[f] - pr.a[f] } else { 0.0 });
-            let ht_w = hm.transpose() * w;
-            st.p += ht_w * hm;
-            st.h += ht_w * r;
-            st.s += (r.transpose() * w * r)[(0, 0)];
-            st.ld += ld;
         }
     }
 
-    /// Writes the normalised posterior probabilities of the grid points into `out`
-    /// (length of [`Self::ln_c`]).
+    /// Writes the normalised posterior probabilities of the grid points into `out` (one per
+    /// point of [`fine_grid`]).
     pub fn probabilities_into(&mut self, out: &mut [f64]) {
         let mut mx = f64::NEG_INFINITY;
         let nk = self.xi1.len();
-        for (g, o) in out.iter_mut().enumerate().take(self.ln_c.len()) {
+        for (g, o) in out.iter_mut().enumerate().take(self.pos.len()) {
             let (lam, ld_lam) = &self.prior[g];
             for k in 0..nk {
                 let st = &self.stats[g * nk + k];
                 let a = lam + st.p;
                 self.scratch[k] = match a.cholesky() {
                     Some(ch) => {
-                        let ld_a =
-                            2.0 * ch.l_dirty().diagonal().iter().map(|d| d.ln()).sum::<f64>();
                         let q = st.h.dot(&ch.solve(&st.h));
-                        -0.5 * (st.s - q) - 0.5 * ld_a + 0.5 * ld_lam - 0.5 * st.ld
+                        -0.5 * (st.s - q) - 0.5 * ch.ln_determinant() + 0.5 * ld_lam - 0.5 * st.ld
                     }
                     None => f64::NEG_INFINITY,
                 };

@@ -140,7 +140,7 @@ pub fn vehicle_hash<T: Serialize>(params: &T) -> anyhow::Result<String> {
 }
 
 /// Index `i` and weight `w` such that `x ≈ (1−w)·axis[i] + w·axis[i+1]`, clamped to the ends.
-fn bracket(axis: &[f64], x: f64) -> (usize, f64) {
+pub(crate) fn bracket(axis: &[f64], x: f64) -> (usize, f64) {
     if axis.len() < 2 || x <= axis[0] {
         return (0, 0.0);
     }
@@ -253,11 +253,6 @@ impl ResponseTable {
             );
         }
         Ok(())
-    }
-
-    /// Position of `v0_kmh` on the speed axis: index and weight of the next speed (clamped).
-    pub fn speed_position(&self, v0_kmh: f64) -> (usize, f64) {
-        bracket(&self.speed_kmh, v0_kmh)
     }
 
     /// Predicted distribution of z for clearance index `ic` and nuisance vehicle `im` at
