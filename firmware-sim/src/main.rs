@@ -53,7 +53,9 @@ use firmware_sim::{FirmwareSim, RunInfo, Scenario};
 ///   [[drive.segment]] kind = "brake":  decel_g, ramp_in_s (0.3), ramp_out_s (0.3),
 ///                duration_s (absent = brake to a stop), hold_s (1.0, pedal held at standstill)
 ///   [[drive.segment]] kind = "stand":  duration_s (car must be stopped)
-///   [excitation] unbalance_kgm (2e-3), road_noise_nm (0.2)          (MODEL.md §7)
+///   [excitation] unbalance_kgm (2e-3), road_noise_nm (0.2)          (MODEL.md §7),
+///                phase_change ("none": the wheels' unbalance phase difference is kept for the
+///                drive; "per_stop": drawn anew at every stop, as after a turn)
 ///   [driver]     steer_rms_deg (1.0), steer_tau_s (2.0), steer_offset_deg (0)
 ///   [sensors]    steer_noise_deg, brake_pressure_noise_bar, brake_bar_per_g (90),
 ///                wheel_speed_noise_kmh, wheel_radius_tolerance_pct, accel_noise_mps2, jitter_ms

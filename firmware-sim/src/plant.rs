@@ -31,6 +31,14 @@ pub trait Plant {
     /// without joints ignores it. Errors (changing nothing) on a value the plant cannot use.
     /// Must not allocate.
     fn set_clearance_m(&mut self, left_m: f64, right_m: f64) -> anyhow::Result<()>;
+    /// The wheel-unbalance phases φ_L, φ_R (rad, MODEL.md §7); `None` for a plant without
+    /// them.
+    fn unbalance_phases(&self) -> Option<[f64; 2]> {
+        None
+    }
+    /// Set the unbalance phases from now on (the wheels rolled different distances, e.g. in a
+    /// turn). A plant without them ignores it. Must not allocate.
+    fn set_unbalance_phases(&mut self, _phases: [f64; 2]) {}
     /// Whether each joint (left, right) is in contact at the current step boundary (MODEL.md
     /// §4); `[false; 2]` for a plant without joints.
     fn in_contact(&self) -> [bool; 2] {
@@ -261,6 +269,12 @@ impl Plant for ModelPlant {
     }
     fn in_contact(&self) -> [bool; 2] {
         self.sim.in_contact()
+    }
+    fn unbalance_phases(&self) -> Option<[f64; 2]> {
+        Some(self.sim.unbalance_phases())
+    }
+    fn set_unbalance_phases(&mut self, phases: [f64; 2]) {
+        self.sim.set_unbalance_phases(phases);
     }
     fn speed_mps(&self) -> f64 {
         self.sim.state()[shimmy::model::rhs::ix::V]

@@ -217,6 +217,21 @@ pub struct Excitation {
     /// Road-noise steer moment σ at 55 km/h (N·m); MODEL.md §7 uses 0.2. 0 disables it.
     #[serde(default = "default_road_noise")]
     pub road_noise_nm: f64,
+    /// What happens to the difference of the two wheels' unbalance phases between braking
+    /// events: `"none"` keeps it for the whole drive (the model's wheels roll together, as on
+    /// a straight road with equal tyres); `"per_stop"` draws the right wheel's phase anew at
+    /// every stop, as a turn at a junction would change it.
+    #[serde(default)]
+    pub phase_change: PhaseChange,
+}
+
+/// See [`Excitation::phase_change`].
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum PhaseChange {
+    #[default]
+    None,
+    PerStop,
 }
 
 fn default_unbalance() -> f64 {
@@ -231,6 +246,7 @@ impl Default for Excitation {
         Excitation {
             unbalance_kgm: default_unbalance(),
             road_noise_nm: default_road_noise(),
+            phase_change: PhaseChange::None,
         }
     }
 }

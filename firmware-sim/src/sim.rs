@@ -18,7 +18,7 @@ use shimmy::wire::Frame;
 use crate::bus::{ReferenceBus, Sample, MAX_BATCH};
 use crate::drive::{DriveCmd, Driver};
 use crate::plant::{LaneKeeping, Plant};
-use crate::scenario::{ClearanceMode, Scenario, Segment};
+use crate::scenario::{ClearanceMode, PhaseChange, Scenario, Segment};
 use crate::truth::{self, GroundTruth};
 
 /// Rate of the δ_sw trace kept for the ground truth (Hz), MODEL.md §10's output rate.
@@ -49,6 +49,8 @@ struct EventJoints {
     steps: u64,
     contact_steps: [u64; 2],
     impacts: [u64; 2],
+    /// cos(φ_R − φ_L) at brake onset (NaN for a plant without unbalance phases).
+    phase_cos: f64,
 }
 
 /// A running simulation.
@@ -87,6 +89,10 @@ pub struct FirmwareSim<P: Plant> {
     done: bool,
     truncated: bool,
     frames_out: u64,
+    /// Draws the right wheel's new unbalance phase at each stop (`phase_change = "per_stop"`).
+    phase_rng: Option<ChaCha8Rng>,
+    /// The car was moving at the previous control step (for `phase_rng`).
+    moving: bool,
 }
 
 impl<P: Plant> FirmwareSim<P> {
@@ -162,6 +168,12 @@ impl<P: Plant> FirmwareSim<P> {
             done: false,
             truncated: false,
             frames_out: 0,
+            phase_rng: (scenario.excitation.phase_change == PhaseChange::PerStop).then(|| {
+                let mut r = ChaCha8Rng::seed_from_u64(scenario.seed);
+                r.set_stream(7);
+                r
+            }),
+            moving: false,
         };
         sim.lane_rad = sim.lane.step(&mut sim.lane_rng);
         sim.trace.push(sim.plant.steering_wheel_rad());
@@ -238,6 +250,10 @@ impl<P: Plant> FirmwareSim<P> {
                 steps: 0,
                 contact_steps: [0; 2],
                 impacts: [0; 2],
+                phase_cos: self
+                    .plant
+                    .unbalance_phases()
+                    .map_or(f64::NAN, |[l, r]| (r - l).cos()),
             });
         }
         let braking = self.driver.braking_event();
@@ -261,6 +277,11 @@ impl<P: Plant> FirmwareSim<P> {
         self.steps += self.chunk;
         let v1 = self.plant.speed_mps();
         self.distance_m += 0.5 * (v + v1) * self.chunk as f64 * self.h_s;
+        let moving = v1 > shimmy::model::braking::driver::V_STANDSTILL_MPS;
+        if self.moving && !moving {
+            self.new_phase_at_stop();
+        }
+        self.moving = moving;
         if self.wear_every > 0 && self.steps.is_multiple_of(self.wear_every) {
             self.apply_wear();
         }
@@ -280,6 +301,18 @@ impl<P: Plant> FirmwareSim<P> {
         }
         let s = self.sample();
         self.bus.poll(&s, &mut self.batch);
+    }
+
+    /// `phase_change = "per_stop"`: the car stopped (at a junction, say) and will turn before
+    /// its next event, so the right wheel's unbalance phase is drawn anew against the left's.
+    fn new_phase_at_stop(&mut self) {
+        use rand::Rng;
+        let (Some(rng), Some([left, _])) = (self.phase_rng.as_mut(), self.plant.unbalance_phases())
+        else {
+            return;
+        };
+        let right = rng.random::<f64>() * std::f64::consts::TAU;
+        self.plant.set_unbalance_phases([left, right]);
     }
 
     /// Contact flags of the joints that have clearance (an ideal joint never reports contact).
@@ -344,6 +377,7 @@ impl<P: Plant> FirmwareSim<P> {
                 steps: 0,
                 contact_steps: [0; 2],
                 impacts: [0; 2],
+                phase_cos: f64::NAN,
             });
             let frac = |n: u64| n as f64 / j.steps.max(1) as f64;
             events.push(truth::EventTruth {
@@ -358,6 +392,7 @@ impl<P: Plant> FirmwareSim<P> {
                 impacts: j.impacts,
                 window_s: window,
                 sw_amplitude_deg: truth::sw_amplitude_deg(&self.trace, TRACE_HZ, window),
+                unbalance_phase_cos: j.phase_cos.is_finite().then_some(j.phase_cos),
             });
         }
         let stats = self.bus.stats();

@@ -105,6 +105,10 @@ pub struct EventTruth {
     pub window_s: [f64; 2],
     /// MODEL.md §11 steering-wheel amplitude from the model's continuous δ_sw (deg).
     pub sw_amplitude_deg: f64,
+    /// cos(φ_R − φ_L) of the wheels' unbalance phases at brake onset (MODEL.md §7; how the
+    /// two unbalance moments add in the steering linkage). Absent for a plant without them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unbalance_phase_cos: Option<f64>,
 }
 
 #[derive(Clone, Debug, Serialize, PartialEq)]

@@ -416,6 +416,29 @@ impl Simulator {
         &self.model
     }
 
+    /// The wheel-unbalance phases φ_L, φ_R of this run (MODEL.md §7, drawn from the seed). Both
+    /// wheels turn with the one spin angle φ, so their difference is fixed for the whole run.
+    pub fn unbalance_phases(&self) -> [f64; 2] {
+        self.exc.phases
+    }
+
+    /// Sets the wheel-unbalance phases φ_L, φ_R (rad) from now on: what happens to their
+    /// difference when the two wheels do not roll the same distance (a turn, unequal rolling
+    /// radii), which the model's one spin angle φ cannot do by itself (§1, §7). Non-finite
+    /// values are ignored.
+    pub fn set_unbalance_phases(&mut self, phases: [f64; 2]) {
+        if !phases.iter().all(|p| p.is_finite()) || phases == self.model.phases {
+            return;
+        }
+        // As for a new demand: no step taken ahead, no tire forces extrapolated across it.
+        self.commit_lookahead();
+        self.tire_n = 0;
+        self.merged_valid = 0;
+        self.model.phases = phases;
+        self.exc.phases = phases;
+        self.trig = Trig::exact(&self.model, &self.y);
+    }
+
     /// Sets the radial clearances of the left and right joints from now on (§4): unequal
     /// wear, or clearance growing with distance (firmware-sim's wear option). A joint whose
     /// clearance grows while the pin presses into the bushing simply sees a smaller
