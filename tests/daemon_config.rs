@@ -137,7 +137,7 @@ fn broken_configs_name_the_key_and_the_problem() {
             &["observer.estimator.method", "kalman"],
         ),
         (
-            "evidence_power = 0.25",
+            "evidence_power = 0.4",
             "evidence_power = 1.5",
             &["observer.estimator.evidence_power", "(0, 1]"],
         ),
@@ -145,6 +145,16 @@ fn broken_configs_name_the_key_and_the_problem() {
             "damping_grid = 9",
             "damping_grid = 0",
             &["observer.estimator.damping_grid", "1-64"],
+        ),
+        (
+            "phase = \"either\"",
+            "phase = \"wheel\"",
+            &["observer.estimator.phase", "wheel"],
+        ),
+        (
+            "phase_grid = 8",
+            "phase_grid = 100",
+            &["observer.estimator.phase_grid", "1-64"],
         ),
         (
             "wear_var_per_km = 0.0001",

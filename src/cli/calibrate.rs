@@ -9,11 +9,13 @@ use std::time::Instant;
 use anyhow::Context;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
 
 use crate::analysis::sweep::{default_threads, par_map};
 use crate::events::median_in_place;
 use crate::model::VehicleParams;
 use crate::observer::emulate::{coords, draw_coords, emulate_cells, RawEvent, N_COORDS};
+use crate::observer::linear::{parse_terms, Term, DEFAULT_TERMS};
 use crate::observer::sensor::SensorModel;
 use crate::observer::simulate::{
     perturb_vehicle, simulate_event, EventShape, NuisanceRanges, SimulatedEvent,
@@ -71,19 +73,22 @@ pub struct Args {
     pub clearance_range: Vec<f64>,
 
     /// Nuisance vehicles drawn from the prior (the same ones at every clearance).
-    #[arg(long, default_value_t = 40)]
+    #[arg(long, default_value_t = 120)]
     pub vehicles: u32,
 
-    /// Initial speeds (km/h). Events outside are predicted from the nearest speed.
+    /// Initial speeds (km/h). Events outside are predicted from the nearest speed. The
+    /// unbalance response has narrow resonances (near 45 km/h the wheel turns at the steering
+    /// mode's frequency), hence the 2.5 km/h steps.
     #[arg(
         long,
         value_delimiter = ',',
-        default_value = "30,35,40,45,50,55,60,65,70,75,80,85,90,95,100"
+        default_value = "30,32.5,35,37.5,40,42.5,45,47.5,50,52.5,55,57.5,60,62.5,65,67.5,70,72.5,\
+                         75,77.5,80,82.5,85,87.5,90,92.5,95,97.5,100"
     )]
     pub speeds: Vec<f64>,
 
     /// Decelerations (g).
-    #[arg(long, value_delimiter = ',', default_value = "0.3,0.8")]
+    #[arg(long, value_delimiter = ',', default_value = "0.3,0.55,0.8")]
     pub decels: Vec<f64>,
 
     /// Events (unbalance phase / road-noise realisations) per vehicle and cell.
@@ -95,7 +100,7 @@ pub struct Args {
     pub shape: String,
 
     /// First seed (keep tuning, table and validation seeds apart).
-    #[arg(long, default_value_t = 1_000_000)]
+    #[arg(long, default_value_t = 4_000_000)]
     pub seed_base: u64,
 
     /// Observer config (detector and feature settings must match `shimmy estimate`'s).
@@ -132,6 +137,32 @@ pub struct Args {
     /// noise.
     #[arg(long, conflicts_with = "refit")]
     pub exact_vehicle: bool,
+
+    /// Also write every simulated event (grid position, seed, features, unbalance phase
+    /// difference) to this JSON file, so that the table can be re-fitted later with
+    /// --events-in without running the model again.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["refit", "events_in"])]
+    pub events_out: Option<PathBuf>,
+
+    /// No model runs: build the table from the events an earlier `--events-out` wrote. The
+    /// vehicle, grid, sampling options and detector settings must be the same as then (the
+    /// file records them and a mismatch is refused).
+    #[arg(long, value_name = "FILE", conflicts_with = "refit")]
+    pub events_in: Option<PathBuf>,
+
+    /// Terms of the nuisance model (comma-separated monomials of d, the deceleration; x0-x6, the
+    /// nuisance coordinates k_s, c_s, k_t, k_g, c_g, unbalance, road noise; u, the cosine of the
+    /// wheels' unbalance phase difference), e.g. "1,d,x0,x1,x1^2,u,x5*u". The first must be
+    /// "1". See src/observer/linear.rs.
+    #[arg(long, default_value = DEFAULT_TERMS, value_name = "TERMS")]
+    pub terms: String,
+
+    /// Keep the per-vehicle cells of this many drawn vehicles for the estimator method
+    /// "mixture" (0: none, the table then serves method "linear" only). They make the table
+    /// file grow with vehicles × speeds. Tables without the nuisance model (fewer drawn vehicles
+    /// than its terms, --exact-vehicle, --emulate) keep all their cells.
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub mixture_vehicles: u32,
 }
 
 /// Smallest spread of ln(feature) stored in a cell.
@@ -318,6 +349,11 @@ pub struct Grid {
     /// Nuisance prior: [`NuisanceRanges::default`], or [`NuisanceRanges::NONE`] for
     /// `--exact-vehicle`.
     pub ranges: NuisanceRanges,
+    /// Terms of the nuisance model ([`crate::observer::linear`]).
+    pub terms: Vec<Term>,
+    /// Drawn vehicles whose cells the table keeps for method "mixture" (see
+    /// [`keep_mixture_vehicles`]).
+    pub mixture_vehicles: u32,
 }
 
 impl Grid {
@@ -342,34 +378,65 @@ pub fn nuisance_vehicle(
     perturb_vehicle(nominal, ranges, &mut rng)
 }
 
-/// Builds the table (the work of `shimmy calibrate`), on `threads` threads.
-pub fn build_table(
-    vehicle: &VehicleParams,
-    grid: &Grid,
-    cfg: &ObserverConfig,
-    threads: usize,
-) -> anyhow::Result<ResponseTable> {
-    let sensor = SensorModel::default();
-    let ranges = grid.ranges;
-    if grid.vehicles == 0 || grid.seeds == 0 {
-        anyhow::bail!("--vehicles and --seeds must be at least 1");
-    }
-    let vehicles: Vec<VehicleParams> = (0..grid.vehicles)
-        .map(|im| nuisance_vehicle(vehicle, &ranges, grid.seed_base, im))
-        .collect();
-    let (nm, nv, nd, ns) = (
-        grid.vehicles as usize,
-        grid.speed_kmh.len(),
-        grid.decel_g.len(),
-        grid.seeds as usize,
-    );
-    // Jobs in cell order: ((ic · M + im) · nv + iv) · nd + id, then seed.
+/// One table event as simulated: its grid position and statistics ([`RawEvent`]), its seed and
+/// the amplitude-calibration pair. What `--events-out` writes and `--events-in` reads back.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TableEvent {
+    pub raw: RawEvent,
+    pub seed: u64,
+    /// Measured noise-corrected excess RMS (deg).
+    pub excess_rms_deg: f64,
+    /// MODEL.md §11 steering-wheel amplitude of the continuous δ_sw (deg).
+    pub true_peak_deg: f64,
+}
+
+/// Format tag of an events file.
+pub const EVENTS_FORMAT: &str = "shimmy calibrate events v1";
+
+/// A table build's simulated events with what they were simulated for.
+#[derive(Serialize, Deserialize)]
+struct EventsFile {
+    format: String,
+    vehicle_hash: String,
+    /// [`grid_fingerprint`] of the build.
+    grid: String,
+    events: Vec<TableEvent>,
+}
+
+/// Everything that decides a build's events: the grid, its sampling, the nuisance prior and
+/// the detector settings (not how the events are fitted afterwards).
+fn grid_fingerprint(grid: &Grid, cfg: &ObserverConfig) -> anyhow::Result<String> {
+    Ok(format!(
+        "clearance_mm {:?}, speed_kmh {:?}, decel_g {:?}, vehicles {}, seeds {}, shape {:?}, \
+         seed_base {}, ranges {:?}; events {}",
+        grid.clearance_mm,
+        grid.speed_kmh,
+        grid.decel_g,
+        grid.vehicles,
+        grid.seeds,
+        grid.shape,
+        grid.seed_base,
+        grid.ranges,
+        serde_json::to_string(&cfg.events)?
+    ))
+}
+
+/// The nuisance vehicles of a build.
+fn drawn_vehicles(vehicle: &VehicleParams, grid: &Grid) -> Vec<VehicleParams> {
+    (0..grid.vehicles)
+        .map(|im| nuisance_vehicle(vehicle, &grid.ranges, grid.seed_base, im))
+        .collect()
+}
+
+/// The jobs of a build in cell order ((ic · M + im) · nv + iv) · nd + id, then seed:
+/// (ic, clearance mm, im, iv, speed km/h, decel g, seed).
+fn jobs(grid: &Grid) -> Vec<(usize, f64, usize, usize, f64, f64, u64)> {
     let mut jobs = Vec::with_capacity(grid.n_events());
     for (ic, &c) in grid.clearance_mm.iter().enumerate() {
-        for im in 0..nm {
+        for im in 0..grid.vehicles as usize {
             for (iv, &v) in grid.speed_kmh.iter().enumerate() {
                 for &d in &grid.decel_g {
-                    for _ in 0..ns {
+                    for _ in 0..grid.seeds {
                         let seed = grid.seed_base + 10_000 + jobs.len() as u64;
                         jobs.push((ic, c, im, iv, v, d, seed));
                     }
@@ -377,6 +444,23 @@ pub fn build_table(
             }
         }
     }
+    jobs
+}
+
+/// Runs the model for every event of `grid` on `threads` threads (the expensive part of
+/// `shimmy calibrate`).
+pub fn simulate_table_events(
+    vehicle: &VehicleParams,
+    grid: &Grid,
+    cfg: &ObserverConfig,
+    threads: usize,
+) -> anyhow::Result<Vec<TableEvent>> {
+    if grid.vehicles == 0 || grid.seeds == 0 {
+        anyhow::bail!("--vehicles and --seeds must be at least 1");
+    }
+    let sensor = SensorModel::default();
+    let vehicles = drawn_vehicles(vehicle, grid);
+    let jobs = jobs(grid);
     let results: Vec<anyhow::Result<SimulatedEvent>> =
         par_map(&jobs, threads, |&(_, c, im, _, v, d, seed)| {
             simulate_event(
@@ -390,10 +474,8 @@ pub fn build_table(
                 cfg,
             )
         });
-    let mut z_all = Vec::with_capacity(jobs.len());
-    let mut zc_all = Vec::with_capacity(jobs.len());
-    let mut pairs = Vec::with_capacity(jobs.len());
-    for (r, &(_, c, im, _, v, d, seed)) in results.iter().zip(&jobs) {
+    let mut out = Vec::with_capacity(jobs.len());
+    for (r, &(ic, c, im, iv, v, d, seed)) in results.iter().zip(&jobs) {
         let e = r
             .as_ref()
             .map_err(|e| anyhow::anyhow!("{e:#}"))
@@ -401,16 +483,129 @@ pub fn build_table(
                 format!("simulating c = {c} mm, vehicle {im}, {v} km/h, {d} g, seed {seed}")
             })?;
         let f = &e.features;
-        z_all.push(crate::observer::features::z(f.rms_deg, f.peak_deg));
+        let z = crate::observer::features::z(f.rms_deg, f.peak_deg);
         let cruise = f.cruise_rms_deg.with_context(|| {
             format!(
                 "simulated event c = {c} mm, vehicle {im}, {v} km/h, {d} g, seed {seed} has no \
                  pre-brake cruise window (events.pre_roll_s too short?)"
             )
         })?;
-        zc_all.push(crate::observer::features::z_cruise(cruise));
-        pairs.push((f.excess_rms_deg, e.true_peak_deg));
+        out.push(TableEvent {
+            raw: RawEvent {
+                ic,
+                im,
+                iv,
+                decel_g: d,
+                z: [z[0], z[1], crate::observer::features::z_cruise(cruise)],
+                phase_cos: e.phase_cos,
+            },
+            seed,
+            excess_rms_deg: f.excess_rms_deg,
+            true_peak_deg: e.true_peak_deg,
+        });
     }
+    Ok(out)
+}
+
+/// Writes a build's events (`--events-out`).
+pub fn save_events(
+    path: &std::path::Path,
+    vehicle: &VehicleParams,
+    grid: &Grid,
+    cfg: &ObserverConfig,
+    events: &[TableEvent],
+) -> anyhow::Result<()> {
+    let file = EventsFile {
+        format: EVENTS_FORMAT.into(),
+        vehicle_hash: vehicle_hash(vehicle)?,
+        grid: grid_fingerprint(grid, cfg)?,
+        events: events.to_vec(),
+    };
+    std::fs::write(path, serde_json::to_string(&file)?)
+        .with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// Reads a build's events (`--events-in`), refusing events simulated for another vehicle, grid
+/// or detector.
+pub fn load_events(
+    path: &std::path::Path,
+    vehicle: &VehicleParams,
+    grid: &Grid,
+    cfg: &ObserverConfig,
+) -> anyhow::Result<Vec<TableEvent>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let file: EventsFile = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not a calibrate events file", path.display()))?;
+    if file.format != EVENTS_FORMAT {
+        anyhow::bail!(
+            "{}: format \"{}\", expected \"{EVENTS_FORMAT}\"",
+            path.display(),
+            file.format
+        );
+    }
+    if file.vehicle_hash != vehicle_hash(vehicle)? {
+        anyhow::bail!(
+            "{} was simulated for other vehicle parameters",
+            path.display()
+        );
+    }
+    let want = grid_fingerprint(grid, cfg)?;
+    if file.grid != want {
+        anyhow::bail!(
+            "{} was simulated for another grid or detector:\n  file: {}\n  now:  {want}",
+            path.display(),
+            file.grid
+        );
+    }
+    Ok(file.events)
+}
+
+/// Builds the table (the work of `shimmy calibrate`), on `threads` threads.
+pub fn build_table(
+    vehicle: &VehicleParams,
+    grid: &Grid,
+    cfg: &ObserverConfig,
+    threads: usize,
+) -> anyhow::Result<ResponseTable> {
+    let events = simulate_table_events(vehicle, grid, cfg, threads)?;
+    assemble_table(vehicle, grid, &events)
+}
+
+/// The table from a build's simulated events (in [`jobs`] order).
+pub fn assemble_table(
+    vehicle: &VehicleParams,
+    grid: &Grid,
+    events: &[TableEvent],
+) -> anyhow::Result<ResponseTable> {
+    let sensor = SensorModel::default();
+    let ranges = grid.ranges;
+    let vehicles = drawn_vehicles(vehicle, grid);
+    let (nm, nv, nd, ns) = (
+        grid.vehicles as usize,
+        grid.speed_kmh.len(),
+        grid.decel_g.len(),
+        grid.seeds as usize,
+    );
+    let jobs = jobs(grid);
+    let in_order = events.len() == jobs.len()
+        && events
+            .iter()
+            .zip(&jobs)
+            .all(|(e, j)| (e.raw.ic, e.raw.im, e.raw.iv, e.seed) == (j.0, j.2, j.3, j.6));
+    if !in_order {
+        anyhow::bail!(
+            "{} events do not match the grid's {} jobs",
+            events.len(),
+            jobs.len()
+        );
+    }
+    let z_all: Vec<[f64; 2]> = events.iter().map(|e| [e.raw.z[0], e.raw.z[1]]).collect();
+    let zc_all: Vec<f64> = events.iter().map(|e| e.raw.z[2]).collect();
+    let mut pairs: Vec<(f64, f64)> = events
+        .iter()
+        .map(|e| (e.excess_rms_deg, e.true_peak_deg))
+        .collect();
     let mut cells: Vec<Cell> = z_all
         .chunks(ns)
         .zip(zc_all.chunks(ns))
@@ -437,17 +632,7 @@ pub fn build_table(
         provenance: provenance(grid, &ranges),
         linear: None,
     };
-    let raw: Vec<RawEvent> = jobs
-        .iter()
-        .zip(z_all.iter().zip(&zc_all))
-        .map(|(&(ic, _, im, iv, _, d, _), (z, &zc))| RawEvent {
-            ic,
-            im,
-            iv,
-            decel_g: d,
-            z: [z[0], z[1], zc],
-        })
-        .collect();
+    let raw: Vec<RawEvent> = events.iter().map(|e| e.raw).collect();
     let table_coords: Vec<_> = vehicles
         .iter()
         .map(|v| coords(vehicle, v, &ranges))
@@ -498,20 +683,51 @@ pub fn build_table(
     }
     pool_spread_globally(&mut t);
     t.provenance += "; one pooled spread";
-    // The linear nuisance model needs drawn vehicles spread over the prior, more of them than
-    // its regressors.
-    if nm > crate::observer::linear::N_BASIS && ranges.stiffness_damping_rel > 0.0 {
+    // The nuisance model needs drawn vehicles spread over the prior, more of them than its
+    // terms.
+    if nm > grid.terms.len() && ranges.stiffness_damping_rel > 0.0 {
         t.linear = Some(crate::observer::linear::fit(
             &raw,
             &table_coords,
             grid.clearance_mm.len(),
             nv,
+            &grid.terms,
             MIN_STD,
         )?);
-        t.provenance += "; linear nuisance model";
+        t.provenance += &format!(
+            "; nuisance model of {} terms (leave-one-vehicle-out misfit)",
+            grid.terms.len()
+        );
     }
+    keep_mixture_vehicles(&mut t, grid.mixture_vehicles)?;
     t.validate()?;
     Ok(t)
+}
+
+/// Keeps the cells of the first `keep` drawn vehicles (all when `keep` is at least their
+/// number, or when the table has no nuisance model). The cells serve method "mixture" only and
+/// grow with vehicles × speeds; a table whose nuisance model describes the vehicles can do
+/// without them (`keep = 0`).
+fn keep_mixture_vehicles(t: &mut ResponseTable, keep: u32) -> anyhow::Result<()> {
+    let nm = t.vehicles;
+    if keep >= nm {
+        return Ok(());
+    }
+    if t.linear.is_none() {
+        // Without the nuisance model the cells are all the table has.
+        return Ok(());
+    }
+    let per_vehicle = t.speed_kmh.len() * t.decel_g.len();
+    let per_clearance = nm as usize * per_vehicle;
+    let keep_n = keep as usize * per_vehicle;
+    let mut cells = Vec::with_capacity(t.clearance_mm.len() * keep_n);
+    for chunk in t.cells.chunks(per_clearance) {
+        cells.extend_from_slice(&chunk[..keep_n]);
+    }
+    t.cells = cells;
+    t.vehicles = keep;
+    t.provenance += &format!("; mixture cells of {keep} of the {nm} vehicles");
+    Ok(())
 }
 
 /// What a table records of how it was built.
@@ -554,6 +770,7 @@ fn emulate_into(
         grid.speed_kmh.len(),
         &grid.decel_g,
         &synth,
+        &grid.terms,
         MIN_STD,
     )?;
     t.vehicles = grid.emulate;
@@ -614,12 +831,36 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         } else {
             NuisanceRanges::default()
         },
+        terms: parse_terms(&args.terms).context("--terms")?,
+        // Tables without the nuisance model keep all their cells.
+        mixture_vehicles: if args.exact_vehicle || args.emulate > 0 {
+            u32::MAX
+        } else {
+            args.mixture_vehicles
+        },
     };
-    eprintln!(
-        "shimmy calibrate: {} model runs on {threads} threads",
-        grid.n_events()
-    );
-    let table = build_table(&vehicle, &grid, &cfg, threads)?;
+    let events = match &args.events_in {
+        Some(path) => {
+            let ev = load_events(path, &vehicle, &grid, &cfg)?;
+            eprintln!(
+                "shimmy calibrate: {} simulated events from {}",
+                ev.len(),
+                path.display()
+            );
+            ev
+        }
+        None => {
+            eprintln!(
+                "shimmy calibrate: {} model runs on {threads} threads",
+                grid.n_events()
+            );
+            simulate_table_events(&vehicle, &grid, &cfg, threads)?
+        }
+    };
+    if let Some(path) = &args.events_out {
+        save_events(path, &vehicle, &grid, &cfg, &events)?;
+    }
+    let table = assemble_table(&vehicle, &grid, &events)?;
     let json = serde_json::to_string(&table)?;
     std::fs::write(&args.out, &json)
         .with_context(|| format!("cannot write {}", args.out.display()))?;

@@ -263,7 +263,7 @@ impl EventStage for ObserverStage {
             clearance_mm: (used && s.detectable).then_some(s.median_mm),
             interval_mm: used.then_some([s.q05_mm, s.q95_mm]),
             detectable: used && s.detectable,
-            below_mm: (used && !s.detectable).then_some(s.q95_mm),
+            below_mm: (used && !s.detectable).then_some(s.below_mm),
             p_above: used.then(|| est.prob_above(self.clearance_mm)),
             events_used: s.events_used,
         })

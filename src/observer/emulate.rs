@@ -25,7 +25,6 @@
 //! Memory and time: one small least-squares problem per (c, v, f); the table grows to
 //! N × clearances × speeds × decelerations cells.
 
-use nalgebra::{DMatrix, DVector};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -69,33 +68,33 @@ pub fn draw_coords(n: usize, seed: u64) -> Vec<[f64; N_COORDS]> {
         .collect()
 }
 
-/// One simulated table event: grid indices and its three statistics (ln RMS, ln peak, cruise).
-#[derive(Clone, Copy, Debug)]
+/// One simulated table event: grid indices, its three statistics (ln RMS, ln peak, cruise) and
+/// the cosine of its wheels' unbalance phase difference (MODEL.md §7).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct RawEvent {
     pub ic: usize,
     pub im: usize,
     pub iv: usize,
     pub decel_g: f64,
     pub z: [f64; 3],
+    /// cos(φ_R − φ_L) of the run ([`super::simulate::SimulatedEvent::phase_cos`]).
+    pub phase_cos: f64,
 }
 
-/// Least squares `x·β ≈ y`; returns β and the residuals.
-pub(crate) fn lstsq(
-    x: &DMatrix<f64>,
-    y: &DVector<f64>,
-) -> anyhow::Result<(DVector<f64>, DVector<f64>)> {
-    let svd = x.clone().svd(true, true);
-    let beta = svd
-        .solve(y, 1e-10)
-        .map_err(|e| anyhow::anyhow!("emulator least squares: {e}"))?;
-    let res = y - x * &beta;
-    Ok((beta, res))
+/// Points of ψ = cos Δ for a phase difference Δ uniform over [0, π] (the midpoints of `n` equal
+/// bins): averaging over them marginalises the phase of one event.
+pub fn phase_quadrature(n: usize) -> impl Iterator<Item = f64> {
+    let n = n.max(1);
+    (0..n).map(move |q| ((q as f64 + 0.5) * std::f64::consts::PI / n as f64).cos())
 }
 
-/// Fits the linear nuisance model on `raw` (the drawn vehicles' events, with their coordinates
-/// `table_coords[im]`, [`super::linear::fit`]) and returns the cells of the `synth` vehicles in
-/// the table's cell order (clearance, vehicle, speed, deceleration), for `decels` grid
-/// decelerations. Each cell's spread is the fit's total residual spread at its clearance.
+/// Fits the nuisance model with `terms` on `raw` (the drawn vehicles' events, with their
+/// coordinates `table_coords[im]`, [`super::linear::fit`]) and returns the cells of the
+/// `synth` vehicles in the table's cell order (clearance, vehicle, speed, deceleration), for
+/// `decels` grid decelerations. A cell describes any event of its vehicle, so its mean is the
+/// law averaged over the unbalance phase difference; each cell's spread is the fit's total
+/// residual spread at its clearance.
+#[allow(clippy::too_many_arguments)]
 pub fn emulate_cells(
     raw: &[RawEvent],
     table_coords: &[[f64; N_COORDS]],
@@ -103,17 +102,24 @@ pub fn emulate_cells(
     n_speed: usize,
     decels: &[f64],
     synth: &[[f64; N_COORDS]],
+    terms: &[super::linear::Term],
     min_std: f64,
 ) -> anyhow::Result<Vec<Cell>> {
-    let lm = super::linear::fit(raw, table_coords, n_clearance, n_speed, min_std)?;
+    let lm = super::linear::fit(raw, table_coords, n_clearance, n_speed, terms, min_std)?;
+    let phases: Vec<f64> = phase_quadrature(16).collect();
     let mut cells = Vec::with_capacity(n_clearance * synth.len() * n_speed * decels.len());
     for ic in 0..n_clearance {
         let s = lm.total_std[ic];
         for xi in synth {
             for iv in 0..n_speed {
                 for &d in decels {
-                    let r = super::linear::basis(xi, d);
-                    let m: [f64; 3] = std::array::from_fn(|f| round5(lm.mean_at(ic, iv, f, &r)));
+                    let m: [f64; 3] = std::array::from_fn(|f| {
+                        let sum: f64 = phases
+                            .iter()
+                            .map(|&u| lm.mean_at(ic, iv, f, &super::linear::vars(xi, u), d))
+                            .sum();
+                        round5(sum / phases.len() as f64)
+                    });
                     cells.push(Cell {
                         mean: [m[0], m[1]],
                         std: [s[0], s[1]],
@@ -189,12 +195,14 @@ mod tests {
                             iv,
                             decel_g: d,
                             z,
+                            phase_cos: 0.0,
                         });
                     }
                 }
             }
         }
-        let cells = emulate_cells(&raw, &table, 2, 3, &decels, &synth, 0.05).unwrap();
+        let terms = crate::observer::linear::parse_terms("1,d,x0,x1,x2,x3,x4,x5,x6").unwrap();
+        let cells = emulate_cells(&raw, &table, 2, 3, &decels, &synth, &terms, 0.05).unwrap();
         assert_eq!(cells.len(), 2 * 5 * 3 * 2);
         let (nv, nd) = (3, 2);
         for ic in 0..2 {
@@ -224,9 +232,13 @@ mod tests {
                 iv: 0,
                 decel_g: 0.3,
                 z: [0.0; 3],
+                phase_cos: 0.0,
             })
             .collect();
-        let e = emulate_cells(&raw, &table, 1, 1, &[0.3], &draw_coords(2, 2), 0.05).unwrap_err();
+        let terms =
+            crate::observer::linear::parse_terms(crate::observer::linear::DEFAULT_TERMS).unwrap();
+        let e = emulate_cells(&raw, &table, 1, 1, &[0.3], &draw_coords(2, 2), &terms, 0.05)
+            .unwrap_err();
         assert!(e.to_string().contains("needs more than"), "{e}");
     }
 }

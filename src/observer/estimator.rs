@@ -32,7 +32,8 @@
 //!   estimate can follow slow growth (wear) and old events count less.
 //! * Summary: posterior median and 5 %/95 % quantiles (piecewise log-linear CDF over the grid),
 //!   `P(c > threshold)` for the clearance alert, and `detectable = q05 > detection_limit`: when
-//!   the posterior cannot exclude the detection limit the estimate is reported as "below q95".
+//!   the posterior cannot exclude the detection limit the estimate is reported as "below
+//!   max(q95, detection limit)".
 //!
 //! Memory: vectors of length (clearances × M) for "mixture", the fixed-size statistics of
 //! [`super::marginal`] for "linear", allocated in [`Estimator::new`]; updates do not allocate.
@@ -73,6 +74,15 @@ pub struct EstimatorConfig {
     /// the posterior without moving its peak: the events count as fewer than they are, for
     /// what the model misses that is shared between them.
     pub evidence_power: f64,
+    /// Method "linear": the wheels' unbalance phase difference is the same in all of the
+    /// vehicle's events ("vehicle"), new in each ("event"), or either, as the events say
+    /// ("either"); see [`super::marginal`].
+    pub phase: String,
+    /// Method "linear": grid points of the phase difference (hypothesis "vehicle", 1-64).
+    pub phase_grid: usize,
+    /// Method "linear": grid points of any further coordinate the table's model grids (e.g.
+    /// the unbalance, 1-64).
+    pub unbalance_grid: usize,
 }
 
 impl Default for EstimatorConfig {
@@ -91,7 +101,10 @@ impl Default for EstimatorConfig {
             evidence_half_life_km: 5000.0,
             misfit_std: 0.0,
             damping_grid: 9,
-            evidence_power: 0.25,
+            evidence_power: 0.4,
+            phase: "either".into(),
+            phase_grid: 8,
+            unbalance_grid: 7,
         }
     }
 }
@@ -143,9 +156,17 @@ impl EstimatorConfig {
         }
         non_negative("misfit_std", self.misfit_std)?;
         non_negative("evidence_half_life_km", self.evidence_half_life_km)?;
+        if super::marginal::PhaseMode::parse(&self.phase).is_none() {
+            anyhow::bail!(
+                "estimator.phase: must be \"vehicle\", \"event\" or \"either\" (got \"{}\")",
+                self.phase
+            );
+        }
         for (key, v) in [
             ("grid_refine", self.grid_refine),
             ("damping_grid", self.damping_grid),
+            ("phase_grid", self.phase_grid),
+            ("unbalance_grid", self.unbalance_grid),
         ] {
             if !(1..=64).contains(&v) {
                 anyhow::bail!("estimator.{key}: must be 1-64 (got {v})");
@@ -173,6 +194,11 @@ pub struct Summary {
     pub q95_mm: f64,
     /// `q05 > detection_limit`.
     pub detectable: bool,
+    /// What a clearance that is not detectable is reported to be below (mm): the 95 % quantile,
+    /// but never less than the detection limit. Under the limit the posterior's shape rests on
+    /// features that hardly change with clearance (MODEL.md §13: the steering wheel's floor from
+    /// unbalance and road noise), so the estimator does not claim to resolve it.
+    pub below_mm: f64,
     pub events_used: u32,
 }
 
@@ -211,6 +237,12 @@ impl Estimator {
             // The mixture's joint vectors stay empty.
             (Some(lp), ln_c, 0)
         } else {
+            if table.n_vehicles() == 0 {
+                anyhow::bail!(
+                    "estimator.method = \"mixture\" needs a response table with drawn-vehicle \
+                     cells (build one with `shimmy calibrate --mixture-vehicles N`)"
+                );
+            }
             let ln_c = table.clearance_mm.iter().map(|c| c.ln()).collect();
             (None, ln_c, table.n_vehicles())
         };
@@ -423,16 +455,27 @@ impl Estimator {
 
     pub fn summary(&self) -> Summary {
         let q05 = self.quantile_mm(0.05);
+        let q95 = self.quantile_mm(0.95);
         Summary {
             median_mm: self.quantile_mm(0.5),
             q05_mm: q05,
-            q95_mm: self.quantile_mm(0.95),
+            q95_mm: q95,
             detectable: q05 > self.cfg.detection_limit_mm,
+            below_mm: q95.max(self.cfg.detection_limit_mm),
             events_used: self.events_used,
         }
     }
 
     pub fn events_used(&self) -> u32 {
         self.events_used
+    }
+
+    /// Method "linear" with `phase = "either"`: the posterior probability that the wheels'
+    /// unbalance phase difference stayed the same over the events ([`super::marginal`]).
+    pub fn phase_fixed_probability(&self) -> Option<f64> {
+        if self.events_used == 0 {
+            return None;
+        }
+        self.linear.as_ref()?.phase_fixed_probability()
     }
 }

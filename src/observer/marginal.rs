@@ -1,47 +1,60 @@
-//! Clearance posterior with the vehicle's nuisances marginalised continuously (estimator
-//! `method = "linear"`), on the response table's linear nuisance model ([`super::linear`]).
+//! Clearance posterior with the vehicle's nuisances marginalised (estimator `method =
+//! "linear"`), on the response table's nuisance model ([`super::linear`]).
 //!
 //! What it is: for each clearance c_g of a fine grid (the table's clearances, each log step cut
 //! into `grid_refine` parts, the model's coefficients interpolated linearly in ln c), the
-//! evidence of all of a vehicle's events with its unknown nuisances integrated out. The
-//! kingpin damping coordinate ξ₁, which the features depend on nonlinearly
-//! ([`super::linear`]), is integrated on a grid of `damping_grid` points (the midpoints of
-//! equal bins of its uniform prior on [−1, 1]). Given (c_g, ξ₁), the latent vector
-//! x = (ξ_j≠1, η) ∈ R⁹ holds the other six coordinates (prior: the uniform [−1, 1] replaced by
-//! the normal of the same variance 1/3) and the three features' per-vehicle misfit
-//! η ~ N(0, T_c). Each event e gives
+//! evidence of all of a vehicle's events with its unknown nuisances integrated out.
 //!
-//!   z_e = a_e(c, ξ₁) + H_e(c, ξ₁)·x + ε_e,   H_e = [B_e | I₃],   ε_e ~ N(0, k²·Σ_c),
+//! * The coordinates the features depend on nonlinearly are integrated on grids (the midpoints
+//!   of equal bins of their uniform priors on [−1, 1]): the kingpin damping ξ₁ (`damping_grid`
+//!   points), any other coordinate the table's model grids (`unbalance_grid` points), and the
+//!   wheels' unbalance phase difference Δ (below).
+//! * Given those, the latent vector x = (ξ_closed-form, η) ∈ R⁹ holds the other coordinates
+//!   (prior: the uniform [−1, 1] replaced by the normal of the same variance 1/3; coordinates
+//!   the model grids keep a zero column and their prior only) and the three features'
+//!   per-vehicle misfit η ~ N(0, T_c). Each event e gives
 //!
-//! (a, B: the model at the event's speed and deceleration; Σ, T: its within- and
-//! between-vehicle covariances; k = `std_inflation`), so x is shared by the events and
-//! conjugate: the sufficient statistics P = Σ_e Hᵀ Σ⁻¹ H (9 × 9), h = Σ_e Hᵀ Σ⁻¹ r_e,
-//! s = Σ_e r_eᵀ Σ⁻¹ r_e and Σ_e ln det Σ (r_e = z_e − a_e) give
+//!   z_e = a_e + H_e·x + ε_e,   H_e = [B_e | I₃],   ε_e ~ N(0, k²·Σ_c + V_e),
 //!
-//!   ln p(z | c, ξ₁) = −½ (s − hᵀ A⁻¹ h) − ½ ln det A + ½ ln det Λ₀ − ½ Σ_e ln det Σ + const,
+//!   (a, B: the model at the event's speed and deceleration; Σ, T: its within- and
+//!   between-vehicle covariances; k = `std_inflation`; V_e below), so x is shared by the events
+//!   and conjugate: the sufficient statistics P = Σ_e Hᵀ S⁻¹ H (9 × 9), h = Σ_e Hᵀ S⁻¹ r_e,
+//!   s = Σ_e r_eᵀ S⁻¹ r_e and Σ_e ln det S (r_e = z_e − a_e, S the event's covariance) give
+//!
+//!   ln p(z | c, grid point) = −½ (s − hᵀ A⁻¹ h) − ½ ln det A + ½ ln det Λ₀ − ½ Σ_e ln det S + const,
+//!
 //!   A = Λ₀ + P,  Λ₀ = prior precision of x,
 //!
-//! and p(z | c) is the mean over the ξ₁ grid.
+//!   and p(z | c) is the mean over the grid points.
 //!
-//! Why: the nuisances are a vehicle's and are the same in all its events. The table's M drawn
-//! vehicles sample them; a mixture over those points (method `"mixture"`) needs a likelihood
-//! wide enough to cover the distance from the true vehicle to the nearest drawn one, which
-//! blurs the clearance (docs/ACCURACY.md "What limits the estimate"). Marginalising over the
-//! continuum keeps each event's own scatter.
+//! The unbalance phase difference Δ = φ_R − φ_L (ψ = cos Δ, MODEL.md §7): both wheels turn
+//! with one spin angle, so Δ stays what it is while the wheels roll together and changes when
+//! they do not (a turn, unequal rolling radii). `phase` says which:
+//! * `"vehicle"`: Δ is the same for all of the vehicle's events, integrated on a grid of
+//!   `phase_grid` points (Δ uniform on [0, π]; its sign does not matter, the vehicle is
+//!   symmetric);
+//! * `"event"`: Δ is new in every event. Its effect is averaged out of each event's prediction
+//!   on a 16-point quadrature, a_e the mean and V_e the covariance of the prediction over Δ;
+//! * `"either"` (the default): both hypotheses, each with prior weight ½, so that the events
+//!   decide. On 80 held-out vehicles with 30 events each (docs/ACCURACY.md), P(fixed) was above
+//!   ½ for 60 of 80 whose Δ was fixed and for 13 of 80 whose Δ changed at every stop: the
+//!   events lean the right way, but not always.
 //!
 //! Wear: before each event all statistics are multiplied by 2^(−distance / half-life): old
 //! evidence fades, so the estimate follows a clearance that grows with distance.
 //!
-//! What it is not: a nonlinear model (what the linear law misses for a vehicle is η, a
-//! Gaussian) or robust to outlier events (the Gaussian has no outlier floor).
+//! What it is not: robust to outlier events (the Gaussian has no outlier floor), or a model of
+//! the physics (the table's model stands for it).
 //!
-//! Memory: the statistics are fixed-size per (clearance, damping) grid point (about 100
-//! numbers), allocated in [`LinearPosterior::new`]; updates and summaries do not allocate.
+//! Memory: the statistics are fixed-size per (clearance, grid point) (about 100 numbers),
+//! allocated with the scratch of one event's term values in [`LinearPosterior::new`]; updates
+//! and summaries do not allocate.
 
 use nalgebra::{Matrix3, SMatrix, SVector};
 
+use super::emulate::phase_quadrature;
 use super::estimator::EstimatorConfig;
-use super::linear::{LinearModel, N_FEAT, N_LIN};
+use super::linear::{Basis, Coefs, LinearModel, N_FEAT, N_LIN, N_VARS, PHASE};
 use super::table::{bracket, ResponseTable};
 
 const NX: usize = N_LIN + N_FEAT;
@@ -50,6 +63,8 @@ type VecX = SVector<f64, NX>;
 
 /// Variance of the uniform [−1, 1] prior of each nuisance coordinate.
 const COORD_VAR: f64 = 1.0 / 3.0;
+/// Quadrature points over Δ of one event (hypothesis "event").
+const EVENT_PHASES: usize = 16;
 
 #[derive(Clone, Copy)]
 struct Stats {
@@ -68,30 +83,97 @@ impl Stats {
             ld: 0.0,
         }
     }
+
+    fn add(
+        &mut self,
+        pr: &super::linear::LinearPrediction,
+        z: &[f64; N_FEAT],
+        mask: &FeatureMask,
+        w: &Matrix3<f64>,
+        ld: f64,
+    ) {
+        let mut hm = SMatrix::<f64, N_FEAT, NX>::zeros();
+        for f in 0..N_FEAT {
+            for j in 0..N_LIN {
+                hm[(f, j)] = pr.b[f][j];
+            }
+            hm[(f, N_LIN + f)] = 1.0;
+        }
+        let r = nalgebra::Vector3::from_fn(|f, _| if mask[f] { z[f] - pr.a[f] } else { 0.0 });
+        let ht_w = hm.transpose() * w;
+        self.p += ht_w * hm;
+        self.h += ht_w * r;
+        self.s += (r.transpose() * w * r)[(0, 0)];
+        self.ld += ld;
+    }
+
+    /// ln p(events | grid point) up to a constant, with prior precision `lam` (ln det `ld_lam`).
+    fn evidence(&self, lam: &MatX, ld_lam: f64) -> f64 {
+        let a = lam + self.p;
+        match a.cholesky() {
+            Some(ch) => {
+                let q = self.h.dot(&ch.solve(&self.h));
+                -0.5 * (self.s - q) - 0.5 * ch.ln_determinant() + 0.5 * ld_lam - 0.5 * self.ld
+            }
+            None => f64::NEG_INFINITY,
+        }
+    }
 }
 
 /// Which features enter: ln RMS, ln peak, cruise.
 pub type FeatureMask = [bool; N_FEAT];
 
-/// The running posterior of method `"linear"`. It keeps its own copy of the table's linear
+/// How the unbalance phase difference is treated (`[estimator] phase`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PhaseMode {
+    Vehicle,
+    Event,
+    Either,
+}
+
+impl PhaseMode {
+    pub fn parse(s: &str) -> Option<PhaseMode> {
+        match s {
+            "vehicle" => Some(PhaseMode::Vehicle),
+            "event" => Some(PhaseMode::Event),
+            "either" => Some(PhaseMode::Either),
+            _ => None,
+        }
+    }
+}
+
+/// The running posterior of method `"linear"`. It keeps its own copy of the table's nuisance
 /// model and speed axis, so an update cannot be handed another table's model.
 pub struct LinearPosterior {
     model: LinearModel,
     speed_kmh: Vec<f64>,
     /// The fine clearance grid's positions on the table's clearance axis ([`fine_grid`]).
     pos: Vec<(usize, f64)>,
-    /// The damping coordinate's grid.
-    xi1: Vec<f64>,
-    /// Statistics, index `g · xi1.len() + k`.
-    stats: Vec<Stats>,
-    /// Scratch: ln p(z | c_g, ξ₁ₖ) of one clearance.
+    /// Grid points of the gridded coordinates with Δ fixed per vehicle (hypothesis "vehicle":
+    /// ψ set), and without ψ (hypothesis "event").
+    points_v: Vec<[f64; N_VARS]>,
+    points_e: Vec<[f64; N_VARS]>,
+    /// Statistics, index `g · points.len() + q`, per hypothesis.
+    stats_v: Vec<Stats>,
+    stats_e: Vec<Stats>,
+    /// Scratch: one event's term values at each grid point of "vehicle", and at each grid
+    /// point × quadrature phase of "event".
+    basis_v: Vec<Basis>,
+    basis_e: Vec<Basis>,
+    /// Scratch: the mean over the quadrature phases of `basis_e`, per grid point of "event".
+    basis_e_mean: Vec<Basis>,
+    /// Scratch: ln p(z | c_g, point) of one clearance.
     scratch: Vec<f64>,
-    /// ln det Λ₀ and Λ₀'s η block per grid point (T_c⁻¹ / k²).
+    /// Λ₀ and ln det Λ₀ per clearance grid point (η block T_c⁻¹ / k²).
     prior: Vec<(MatX, f64)>,
     inflation2: f64,
     half_life_km: f64,
     /// Power on the likelihood (tempering, 0 < power ≤ 1).
     power: f64,
+    /// Scratch: the share of hypothesis "vehicle" in each clearance's evidence.
+    share_v: Vec<f64>,
+    /// Posterior probability of hypothesis "vehicle" (NaN when only one is in use).
+    p_vehicle: f64,
 }
 
 /// Inverse and ln det of the masked block of `m` (unused features: zero rows and columns).
@@ -140,6 +222,23 @@ pub fn fine_grid(clearance_mm: &[f64], refine: usize) -> (Vec<f64>, Vec<(usize, 
     (ln_c, pos)
 }
 
+/// Midpoints of `n` equal bins of [−1, 1].
+fn midpoints(n: usize) -> Vec<f64> {
+    let n = n.max(1);
+    (0..n)
+        .map(|k| -1.0 + (2 * k + 1) as f64 / n as f64)
+        .collect()
+}
+
+/// ln of the mean of exp over `xs` (−∞ when all are).
+fn log_mean_exp(xs: &[f64]) -> f64 {
+    let m = xs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if !m.is_finite() {
+        return f64::NEG_INFINITY;
+    }
+    m + (xs.iter().map(|x| (x - m).exp()).sum::<f64>() / xs.len() as f64).ln()
+}
+
 impl LinearPosterior {
     /// A flat posterior over the grid points `pos` ([`fine_grid`]) of `table`, with the
     /// estimator settings `cfg` (checked by [`EstimatorConfig::validate`]).
@@ -149,10 +248,51 @@ impl LinearPosterior {
         pos: Vec<(usize, f64)>,
         cfg: &EstimatorConfig,
     ) -> anyhow::Result<LinearPosterior> {
-        let nk = cfg.damping_grid.max(1);
-        let xi1: Vec<f64> = (0..nk)
-            .map(|k| -1.0 + (2 * k + 1) as f64 / nk as f64)
-            .collect();
+        let mut mode = PhaseMode::parse(&cfg.phase)
+            .ok_or_else(|| anyhow::anyhow!("estimator.phase: unknown `{}`", cfg.phase))?;
+        if !model.has_phase() {
+            // The table's model does not know Δ: its event scatter already holds it.
+            mode = PhaseMode::Event;
+        }
+        // The gridded coordinates' points (ψ = 0).
+        let mut points: Vec<[f64; N_VARS]> = vec![[0.0; N_VARS]];
+        for (i, j) in model.grid_coords().into_iter().enumerate() {
+            let values = midpoints(if i == 0 {
+                cfg.damping_grid
+            } else {
+                cfg.unbalance_grid
+            });
+            points = points
+                .iter()
+                .flat_map(|p| {
+                    values.iter().map(move |&v| {
+                        let mut q = *p;
+                        q[j] = v;
+                        q
+                    })
+                })
+                .collect();
+        }
+        let points_v: Vec<[f64; N_VARS]> = if mode == PhaseMode::Event {
+            Vec::new()
+        } else {
+            points
+                .iter()
+                .flat_map(|p| {
+                    phase_quadrature(cfg.phase_grid).map(move |u| {
+                        let mut q = *p;
+                        q[PHASE] = u;
+                        q
+                    })
+                })
+                .collect()
+        };
+        let points_e = if mode == PhaseMode::Vehicle {
+            Vec::new()
+        } else {
+            points
+        };
+        let n_quad = if model.has_phase() { EVENT_PHASES } else { 1 };
         let inflation2 = cfg.std_inflation * cfg.std_inflation;
         let mut prior = Vec::with_capacity(pos.len());
         for &p in &pos {
@@ -162,7 +302,7 @@ impl LinearPosterior {
             let t = (model.between_at(p) + Matrix3::identity() * floor) * inflation2;
             let ch = t
                 .cholesky()
-                .ok_or_else(|| anyhow::anyhow!("linear model: misfit covariance not positive"))?;
+                .ok_or_else(|| anyhow::anyhow!("nuisance model: misfit covariance not positive"))?;
             let t_inv = ch.inverse();
             let mut lam = MatX::zeros();
             for i in 0..N_LIN {
@@ -176,18 +316,31 @@ impl LinearPosterior {
             let ld_lam = -(N_LIN as f64) * COORD_VAR.ln() - ch.ln_determinant();
             prior.push((lam, ld_lam));
         }
+        let ng = pos.len();
         Ok(LinearPosterior {
             model: model.clone(),
             speed_kmh: table.speed_kmh.clone(),
-            stats: vec![Stats::zero(); pos.len() * nk],
-            scratch: vec![0.0; nk],
-            xi1,
+            stats_v: vec![Stats::zero(); ng * points_v.len()],
+            stats_e: vec![Stats::zero(); ng * points_e.len()],
+            basis_v: vec![Basis::default(); points_v.len()],
+            basis_e: vec![Basis::default(); points_e.len() * n_quad],
+            basis_e_mean: vec![Basis::default(); points_e.len()],
+            scratch: vec![0.0; points_v.len().max(points_e.len())],
+            points_v,
+            points_e,
             pos,
             prior,
             inflation2,
             half_life_km: cfg.evidence_half_life_km,
             power: cfg.evidence_power,
+            share_v: vec![0.0; ng],
+            p_vehicle: f64::NAN,
         })
+    }
+
+    /// Grid points per clearance (both hypotheses).
+    pub fn points(&self) -> usize {
+        self.points_v.len() + self.points_e.len()
     }
 
     /// Fades the evidence over `dist_km` of driving.
@@ -197,7 +350,7 @@ impl LinearPosterior {
             return;
         }
         let f = (-(dist_km / self.half_life_km) * std::f64::consts::LN_2).exp();
-        for st in &mut self.stats {
+        for st in self.stats_v.iter_mut().chain(self.stats_e.iter_mut()) {
             st.p *= f;
             st.h *= f;
             st.s *= f;
@@ -209,29 +362,56 @@ impl LinearPosterior {
     /// speed `v0_kmh` and deceleration `decel_g`.
     pub fn update(&mut self, z: [f64; N_FEAT], mask: &FeatureMask, v0_kmh: f64, decel_g: f64) {
         let sp = bracket(&self.speed_kmh, v0_kmh);
-        let nk = self.xi1.len();
-        for (g, stats) in self.stats.chunks_mut(nk).enumerate() {
+        // The event's term values at every grid point: they do not depend on the clearance.
+        for (b, x) in self.basis_v.iter_mut().zip(&self.points_v) {
+            self.model.basis_into(x, decel_g, b);
+        }
+        let n_quad = self.basis_e.len() / self.points_e.len().max(1);
+        for (i, x) in self.points_e.iter().enumerate() {
+            for (k, u) in phase_quadrature(n_quad).enumerate() {
+                let mut y = *x;
+                y[PHASE] = u;
+                self.model
+                    .basis_into(&y, decel_g, &mut self.basis_e[i * n_quad + k]);
+            }
+            Basis::mean_of(
+                &self.basis_e[i * n_quad..(i + 1) * n_quad],
+                &mut self.basis_e_mean[i],
+            );
+        }
+        let (nv, ne) = (self.points_v.len(), self.points_e.len());
+        let mut coefs = Coefs::default();
+        for g in 0..self.pos.len() {
+            self.model.coef_interp(self.pos[g], sp, &mut coefs);
             // The event scatter depends on the clearance only: one inverse per grid clearance.
             let sigma = self.model.within_at(self.pos[g]) * self.inflation2;
-            let Some((w, ld)) = masked_inverse(&sigma, mask) else {
-                continue;
-            };
-            for (st, &xi1) in stats.iter_mut().zip(&self.xi1) {
-                let pr = self.model.predict(self.pos[g], sp, decel_g, xi1);
-                let mut hm = SMatrix::<f64, N_FEAT, NX>::zeros();
-                for f in 0..N_FEAT {
-                    for j in 0..N_LIN {
-                        hm[(f, j)] = pr.b[f][j];
-                    }
-                    hm[(f, N_LIN + f)] = 1.0;
+            if nv > 0 {
+                let Some((w, ld)) = masked_inverse(&sigma, mask) else {
+                    continue;
+                };
+                for (st, b) in self.stats_v[g * nv..(g + 1) * nv]
+                    .iter_mut()
+                    .zip(&self.basis_v)
+                {
+                    let pr = self.model.predict_with(&coefs, b);
+                    st.add(&pr, &z, mask, &w, ld);
                 }
-                let r =
-                    nalgebra::Vector3::from_fn(|f, _| if mask[f] { z[f] - pr.a[f] } else { 0.0 });
-                let ht_w = hm.transpose() * w;
-                st.p += ht_w * hm;
-                st.h += ht_w * r;
-                st.s += (r.transpose() * w * r)[(0, 0)];
-                st.ld += ld;
+            }
+            for q in 0..ne {
+                // Δ new in this event: the mean of the prediction over Δ (the law is linear in
+                // its terms, so the mean event's terms give it) and its covariance.
+                let mean = self.model.predict_with(&coefs, &self.basis_e_mean[q]);
+                let am = nalgebra::Vector3::from(mean.a);
+                let mut var = Matrix3::<f64>::zeros();
+                for b in &self.basis_e[q * n_quad..(q + 1) * n_quad] {
+                    let d = nalgebra::Vector3::from(self.model.mean_with(&coefs, b)) - am;
+                    var += d * d.transpose();
+                }
+                var /= n_quad as f64;
+                let Some((w, ld)) = masked_inverse(&(sigma + var), mask) else {
+                    continue;
+                };
+                self.stats_e[g * ne + q].add(&mean, &z, mask, &w, ld);
             }
         }
     }
@@ -240,30 +420,33 @@ impl LinearPosterior {
     /// point of [`fine_grid`]).
     pub fn probabilities_into(&mut self, out: &mut [f64]) {
         let mut mx = f64::NEG_INFINITY;
-        let nk = self.xi1.len();
+        let (nv, ne) = (self.points_v.len(), self.points_e.len());
         for (g, o) in out.iter_mut().enumerate().take(self.pos.len()) {
             let (lam, ld_lam) = &self.prior[g];
-            for k in 0..nk {
-                let st = &self.stats[g * nk + k];
-                let a = lam + st.p;
-                self.scratch[k] = match a.cholesky() {
-                    Some(ch) => {
-                        let q = st.h.dot(&ch.solve(&st.h));
-                        -0.5 * (st.s - q) - 0.5 * ch.ln_determinant() + 0.5 * ld_lam - 0.5 * st.ld
-                    }
-                    None => f64::NEG_INFINITY,
-                };
+            let mut l_v = f64::NEG_INFINITY;
+            if nv > 0 {
+                for q in 0..nv {
+                    self.scratch[q] = self.stats_v[g * nv + q].evidence(lam, *ld_lam);
+                }
+                l_v = log_mean_exp(&self.scratch[..nv]);
             }
-            // ln of the mean over the damping grid.
-            let m = self
-                .scratch
-                .iter()
-                .copied()
-                .fold(f64::NEG_INFINITY, f64::max);
-            let l = if m.is_finite() {
-                m + (self.scratch.iter().map(|x| (x - m).exp()).sum::<f64>() / nk as f64).ln()
+            let mut l_e = f64::NEG_INFINITY;
+            if ne > 0 {
+                for q in 0..ne {
+                    self.scratch[q] = self.stats_e[g * ne + q].evidence(lam, *ld_lam);
+                }
+                l_e = log_mean_exp(&self.scratch[..ne]);
+            }
+            // Equal prior weight on the hypotheses that are in use.
+            let l = match (nv > 0, ne > 0) {
+                (true, true) => log_mean_exp(&[l_v, l_e]),
+                (true, false) => l_v,
+                _ => l_e,
+            };
+            self.share_v[g] = if l.is_finite() {
+                0.5 * (l_v - l).exp()
             } else {
-                f64::NEG_INFINITY
+                0.5
             };
             *o = self.power * l;
             mx = mx.max(*o);
@@ -280,5 +463,17 @@ impl LinearPosterior {
         for l in out.iter_mut() {
             *l /= sum;
         }
+        self.p_vehicle = if nv > 0 && ne > 0 {
+            out.iter().zip(&self.share_v).map(|(p, s)| p * s).sum()
+        } else {
+            f64::NAN
+        };
+    }
+
+    /// Posterior probability that the wheels' unbalance phase difference was the same in all
+    /// the events (hypothesis "vehicle" of `phase = "either"`), after the last
+    /// [`Self::probabilities_into`]; `None` when only one hypothesis is in use.
+    pub fn phase_fixed_probability(&self) -> Option<f64> {
+        self.p_vehicle.is_finite().then_some(self.p_vehicle)
     }
 }

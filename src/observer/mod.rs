@@ -114,7 +114,8 @@ pub struct Report {
     /// 90 % credible interval [5 %, 95 %] (mm); null without a table or without used events.
     pub interval_mm: Option<[f64; 2]>,
     pub detectable: bool,
-    /// When not detectable: the clearance is below this (mm), the posterior's 95 % quantile.
+    /// When not detectable: the clearance is below this (mm): the posterior's 95 % quantile, at
+    /// least the detection limit.
     pub below_mm: Option<f64>,
     /// Posterior median (mm) whether or not detectable (for validation; null without estimate).
     pub median_mm: Option<f64>,
@@ -128,6 +129,10 @@ pub struct Report {
     /// Events not kept in `events` because the report's list was full.
     pub events_dropped: u64,
     pub p_clearance_above_threshold: Option<f64>,
+    /// Method "linear", `phase = "either"`: posterior probability that the wheels' unbalance
+    /// phase difference stayed the same over the events (src/observer/marginal.rs).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub p_wheel_phase_fixed: Option<f64>,
 }
 
 /// Most events kept in the report (memory bound).
@@ -366,8 +371,8 @@ impl Observer {
                 None,
                 Some([s.q05_mm, s.q95_mm]),
                 false,
-                Some(s.q95_mm),
-                format!("below {:.2} mm ({} events)", s.q95_mm, s.events_used),
+                Some(s.below_mm),
+                format!("below {:.2} mm ({} events)", s.below_mm, s.events_used),
             ),
         };
         Report {
@@ -383,6 +388,10 @@ impl Observer {
             brake_applications_ignored: self.detector.ignored,
             events_dropped: self.events_dropped,
             p_clearance_above_threshold: summary.map(|s| s.1),
+            p_wheel_phase_fixed: self
+                .estimator
+                .as_ref()
+                .and_then(|e| e.phase_fixed_probability()),
         }
     }
 }

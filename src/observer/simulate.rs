@@ -136,6 +136,9 @@ pub struct SimulatedEvent {
     pub v0_kmh: f64,
     pub decel_g: f64,
     pub used: bool,
+    /// cos(φ_R − φ_L) of the run's unbalance phases (MODEL.md §7): how the two wheels'
+    /// unbalance excitations add in the steering linkage (1: in phase, −1: opposed).
+    pub phase_cos: f64,
 }
 
 /// Runs one braking event at (`clearance_m`, `v0_mps`, `decel_g`) with `seed` on vehicle `p`,
@@ -189,6 +192,7 @@ pub fn simulate_event(
         ..Scenario::default()
     };
     let mut sim = Simulator::new(p, &sc).context("model scenario")?;
+    let [phi_l, phi_r] = sim.unbalance_phases();
     let n_steps = (sc.duration_s / sc.h_s).round() as usize;
     // 1 kHz output and control: the driver's pedal is updated and the state sampled every
     // `stride` grid steps, and the model advances `stride` steps at a time, merging free-flight
@@ -328,5 +332,6 @@ pub fn simulate_event(
         v0_kmh: rec.v0_kmh,
         decel_g: rec.decel_g,
         used: rec.used,
+        phase_cos: (phi_r - phi_l).cos(),
     })
 }

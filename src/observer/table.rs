@@ -29,7 +29,10 @@ use serde::{Deserialize, Serialize};
 
 use super::sensor::SensorModel;
 
-pub const FORMAT: &str = "shimmy response table v3";
+pub const FORMAT: &str = "shimmy response table v4";
+/// The nuisance model of format v2 of `linear` (17 fixed regressors, no unbalance phase):
+/// loaded without it.
+pub const FORMAT_V3: &str = "shimmy response table v3";
 /// Without the cruise statistic (`cruise = false`).
 pub const FORMAT_V2: &str = "shimmy response table v2";
 /// The older format (one pooled nuisance distribution per cell); loads as `vehicles = 1`.
@@ -100,7 +103,9 @@ pub struct ResponseTable {
     pub clearance_mm: Vec<f64>,
     pub speed_kmh: Vec<f64>,
     pub decel_g: Vec<f64>,
-    /// Nuisance vehicles per clearance (M); the same M vehicles at every clearance.
+    /// Nuisance vehicles per clearance in `cells` (M); the same M vehicles at every clearance.
+    /// Format v4 may have none (M = 0, no cells): then only the nuisance model `linear`
+    /// describes the vehicles, and method "mixture" cannot use the table.
     #[serde(default = "one")]
     pub vehicles: u32,
     /// Seeds per cell.
@@ -163,9 +168,13 @@ impl ResponseTable {
         2 + self.cruise as usize
     }
 
-    /// Nuisance vehicles per clearance (M ≥ 1).
+    /// Nuisance vehicles per clearance in the cells (M; 0 for a table without cells).
     pub fn n_vehicles(&self) -> usize {
-        self.vehicles.max(1) as usize
+        if self.format == FORMAT {
+            self.vehicles as usize
+        } else {
+            self.vehicles.max(1) as usize
+        }
     }
 
     fn idx(&self, ic: usize, im: usize, iv: usize, id: usize) -> usize {
@@ -178,7 +187,8 @@ impl ResponseTable {
 
     /// Checks shape, ordering and finiteness.
     pub fn validate(&self) -> anyhow::Result<()> {
-        if self.format != FORMAT && self.format != FORMAT_V2 && self.format != FORMAT_V1 {
+        let known = [FORMAT, FORMAT_V3, FORMAT_V2, FORMAT_V1];
+        if !known.contains(&self.format.as_str()) {
             bail!(
                 "not a response table: format `{}` (want `{FORMAT}`)",
                 self.format
@@ -196,16 +206,20 @@ impl ResponseTable {
         if self.clearance_mm.len() < 2 {
             bail!("table needs at least 2 clearances");
         }
-        if self.vehicles == 0 || self.vehicles > 4096 {
+        let min_vehicles = if self.format == FORMAT { 0 } else { 1 };
+        if self.vehicles < min_vehicles || self.vehicles > 4096 {
             bail!(
-                "table has {} nuisance vehicles (want 1-4096)",
+                "table has {} nuisance vehicles (want {min_vehicles}-4096)",
                 self.vehicles
             );
+        }
+        if self.vehicles == 0 && self.linear.is_none() {
+            bail!("a table without drawn-vehicle cells needs the nuisance model (`linear`)");
         }
         if self.format == FORMAT_V1 && self.vehicles != 1 {
             bail!("a {FORMAT_V1} has one pooled nuisance distribution (vehicles = 1)");
         }
-        if self.cruise != (self.format == FORMAT) {
+        if self.cruise != (self.format == FORMAT || self.format == FORMAT_V3) {
             bail!(
                 "a `{}` table must have cruise = {}",
                 self.format,
@@ -232,11 +246,19 @@ impl ResponseTable {
         Ok(())
     }
 
-    /// Loads and validates a table file.
+    /// Loads and validates a table file. A format v3 table loads without its nuisance model,
+    /// whose layout is gone (rebuild it with `shimmy calibrate` for method "linear").
     pub fn load(path: &std::path::Path) -> anyhow::Result<ResponseTable> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read response table {}", path.display()))?;
-        let t: ResponseTable = serde_json::from_str(&text)
+        let mut v: serde_json::Value = serde_json::from_str(&text)
+            .with_context(|| format!("{} is not a response table", path.display()))?;
+        if v.get("format").and_then(|f| f.as_str()) == Some(FORMAT_V3) {
+            if let Some(o) = v.as_object_mut() {
+                o.remove("linear");
+            }
+        }
+        let t: ResponseTable = serde_json::from_value(v)
             .with_context(|| format!("{} is not a response table", path.display()))?;
         t.validate()
             .with_context(|| format!("response table {}", path.display()))?;
