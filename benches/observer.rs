@@ -101,7 +101,7 @@ fn bench(c: &mut Criterion) {
     );
     update_bench(
         c,
-        "observer: posterior update only, linear (45 clearances x 9 damping points)",
+        "observer: posterior update only, linear (45 clearances x 9 damping points; phase: 8 fixed + 16 per event)",
         t,
         EstimatorConfig::default(),
     );
