@@ -1,0 +1,187 @@
+//! The clearance observer's hot paths allocate nothing per frame (issue 5: "everything runs
+//! without allocation per frame and within bounded memory on the gateway"), counted with a
+//! global allocator wrapper:
+//! * the estimator's update, summary and alert probabilities on the shipped table (method
+//!   "linear", both wheel-phase hypotheses) allocate nothing at all;
+//! * the observer allocates nothing per frame outside braking events, and per braking event a
+//!   fixed number of times that does not grow with the event's length in frames (4 on
+//!   2026-12-02, for stops of 827 and 1692 samples).
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
+
+use shimmy::events::Sample;
+use shimmy::observer::estimator::{Estimator, EstimatorConfig};
+use shimmy::observer::table::ResponseTable;
+use shimmy::observer::{Observer, ObserverConfig};
+
+struct Counting;
+
+static ALLOCS: AtomicU64 = AtomicU64::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        unsafe { System.alloc(l) }
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        unsafe { System.dealloc(p, l) }
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        unsafe { System.realloc(p, l, n) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+/// The counter is global: the tests of this file take turns.
+static SERIAL: Mutex<()> = Mutex::new(());
+
+fn counted<R>(f: impl FnOnce() -> R) -> (R, u64) {
+    let before = ALLOCS.load(Ordering::SeqCst);
+    let r = f();
+    (r, ALLOCS.load(Ordering::SeqCst) - before)
+}
+
+fn shipped_table() -> ResponseTable {
+    ResponseTable::load(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("config/vehicle/default_table.json"),
+    )
+    .expect("the shipped table")
+}
+
+#[test]
+fn estimator_updates_and_summaries_do_not_allocate() {
+    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let table = shipped_table();
+    let cfg = EstimatorConfig::default();
+    assert_eq!(cfg.method, "linear");
+    assert_eq!(cfg.phase, "either");
+    let mut est = Estimator::new(&table, cfg).unwrap();
+    let ((), n) = counted(|| {
+        for k in 0..30 {
+            let v0 = 30.0 + 70.0 * (k as f64 * 0.37).fract();
+            let decel = 0.3 + 0.5 * (k as f64 * 0.61).fract();
+            est.update_event(
+                &table,
+                0.04 + 0.002 * k as f64,
+                0.15,
+                Some(0.03),
+                v0,
+                decel,
+                1000.0 * k as f64,
+            );
+            let s = est.summary();
+            assert!(s.q05_mm <= s.median_mm && s.median_mm <= s.q95_mm);
+            assert!((0.0..=1.0).contains(&est.prob_above(0.1)));
+            let _ = est.phase_fixed_probability();
+        }
+    });
+    assert_eq!(est.events_used(), 30);
+    assert_eq!(n, 0, "the estimator allocated {n} times over 30 events");
+}
+
+/// `cruise_s` at `v0_kmh`, then (if `decel_g` > 0) a stop at `decel_g` and `hold_s` standing: 100 Hz steering
+/// angle (0.1 deg steps, a 6.2 Hz shimmy) and 50 Hz speed on a 1 kHz time base.
+fn drive(t0_s: f64, cruise_s: f64, v0_kmh: f64, decel_g: f64, hold_s: f64) -> Vec<Sample> {
+    let mut out = Vec::new();
+    let mut v: f64 = v0_kmh / 3.6;
+    let mut braking = false;
+    let mut stopped_s = 0.0;
+    let mut k = 0u64;
+    loop {
+        let t = k as f64 * 1e-3;
+        if t >= cruise_s {
+            if decel_g <= 0.0 {
+                break;
+            }
+            braking = true;
+        }
+        if braking {
+            v = (v - decel_g * 9.81 * 1e-3).max(0.0);
+            if v == 0.0 {
+                stopped_s += 1e-3;
+                if stopped_s > hold_s {
+                    break;
+                }
+            }
+        }
+        // Every sample carries the brake state, as the signal mapper's snapshot does.
+        let mut s = Sample {
+            t_ns: ((t0_s + t) * 1e9) as i64,
+            brake: Some(braking && v > 0.0),
+            ..Default::default()
+        };
+        if k % 10 == 0 {
+            let deg = 0.15 * (2.0 * std::f64::consts::PI * 6.2 * t).sin() + 0.03;
+            s.steer_rad = Some(((deg / 0.1).round() * 0.1f64).to_radians());
+        }
+        if k % 20 == 5 {
+            s.speed_mps = Some(v);
+        }
+        if s.steer_rad.is_some() || s.speed_mps.is_some() {
+            out.push(s);
+        }
+        k += 1;
+    }
+    out
+}
+
+#[test]
+fn the_observer_allocates_nothing_per_frame() {
+    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let mut obs = Observer::new(ObserverConfig::default(), Some(shipped_table())).unwrap();
+    // Warm-up: the first events size the extractor's buffers (the longest event so far).
+    let mut t = 0.0;
+    for _ in 0..2 {
+        let d = drive(t, 3.0, 100.0, 0.3, 1.0);
+        t += 40.0;
+        for s in &d {
+            obs.push(s);
+        }
+    }
+    assert_eq!(obs.events().len(), 2, "{:?}", obs.events());
+
+    // Cruise only (no brake): nothing per frame.
+    let cruise = drive(t, 20.0, 80.0, 0.0, 0.0);
+    t += 40.0;
+    let ((), n) = counted(|| {
+        for s in &cruise {
+            obs.push(s);
+        }
+    });
+    assert_eq!(n, 0, "{} cruise frames, {n} allocations", cruise.len());
+
+    // One short and one long stop (both shorter than the warm-up's): the allocations per event
+    // do not grow with its frames.
+    let mut per_event = Vec::new();
+    for (v0, decel) in [(40.0, 0.75), (90.0, 0.35)] {
+        let d = drive(t, 3.0, v0, decel, 1.0);
+        t += 40.0;
+        let before = obs.events().len();
+        let ((), n) = counted(|| {
+            for s in &d {
+                obs.push(s);
+            }
+        });
+        assert_eq!(obs.events().len(), before + 1, "one stop, one event");
+        assert!(
+            obs.events().last().unwrap().used,
+            "{:?}",
+            obs.events().last()
+        );
+        per_event.push((d.len(), n));
+    }
+    eprintln!("frames, allocations per event: {per_event:?}");
+    let (short, long) = (per_event[0], per_event[1]);
+    assert!(long.0 > 2 * short.0, "{per_event:?}");
+    assert_eq!(
+        short.1, long.1,
+        "allocations per event (frames, allocations): {per_event:?}"
+    );
+    assert!(short.1 <= 8, "allocations per event: {per_event:?}");
+}
