@@ -116,7 +116,7 @@ fn drive(t0_s: f64, cruise_s: f64, v0_kmh: f64, decel_g: f64, hold_s: f64) -> Ve
             brake: Some(braking && v > 0.0),
             ..Default::default()
         };
-        if k % 10 == 0 {
+        if k.is_multiple_of(10) {
             let deg = 0.15 * (2.0 * std::f64::consts::PI * 6.2 * t).sin() + 0.03;
             s.steer_rad = Some(((deg / 0.1).round() * 0.1f64).to_radians());
         }
