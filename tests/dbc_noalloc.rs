@@ -1,27 +1,11 @@
 //! The decode path allocates nothing per frame: a counting global allocator sees no allocation
 //! while message lookup + decode run over real frames (classic and multiplexed).
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicU64, Ordering};
-
 use shimmy::dbc::Database;
 
-struct Counting;
-
-static ALLOCS: AtomicU64 = AtomicU64::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::SeqCst);
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
+#[path = "support/counting_alloc.rs"]
+mod counting_alloc;
+use counting_alloc::allocations;
 
 #[test]
 fn decode_allocates_nothing() {
@@ -50,7 +34,7 @@ fn decode_allocates_nothing() {
         .map(|i| (i.wrapping_mul(0x9E37_79B9_7F4A_7C15)).to_le_bytes())
         .collect();
 
-    let before = ALLOCS.load(Ordering::SeqCst);
+    let before = allocations();
     let mut acc = 0.0;
     let mut decoded = 0u64;
     for (id, data) in &frames {
@@ -64,7 +48,7 @@ fn decode_allocates_nothing() {
             let _ = m.decode(&p[..m.size_bytes.min(8)], |_, _, v| acc += v);
         }
     }
-    let after = ALLOCS.load(Ordering::SeqCst);
+    let after = allocations();
     assert!(decoded > 30_000);
     assert!(acc.is_finite() || acc.is_nan());
     assert_eq!(after - before, 0, "decode allocated");

@@ -2,32 +2,12 @@
 //! global allocator), and an external longitudinal demand drives whole drive cycles.
 
 use shimmy::model::{Integrator, Scenario, Simulator, VehicleParams};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 
-// Counted per thread: the test harness runs the other tests of this file on other threads at the
-// same time, and their allocations must not be charged to the step loop.
-struct Counting;
-thread_local! {
-    static ALLOCS: Cell<usize> = const { Cell::new(0) };
-}
-
-fn allocs() -> usize {
-    ALLOCS.with(|c| c.get())
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        let _ = ALLOCS.try_with(|c| c.set(c.get() + 1));
-        unsafe { System.alloc(l) }
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        unsafe { System.dealloc(p, l) }
-    }
-}
-
-#[global_allocator]
-static A: Counting = Counting;
+// Counted per thread (tests/support/counting_alloc.rs): the harness runs the other tests of
+// this file on other threads at the same time.
+#[path = "support/counting_alloc.rs"]
+mod counting_alloc;
+use counting_alloc::allocations as allocs;
 
 #[test]
 fn step_and_outputs_do_not_allocate() {

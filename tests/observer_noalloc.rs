@@ -7,45 +7,16 @@
 //!   fixed number of times that does not grow with the event's length in frames (4 on
 //!   2026-12-02, for stops of 827 and 1692 samples).
 
-use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::Path;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Mutex;
 
 use shimmy::events::Sample;
 use shimmy::observer::estimator::{Estimator, EstimatorConfig};
 use shimmy::observer::table::ResponseTable;
 use shimmy::observer::{Observer, ObserverConfig};
 
-struct Counting;
-
-static ALLOCS: AtomicU64 = AtomicU64::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        unsafe { System.alloc(l) }
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        unsafe { System.dealloc(p, l) }
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        unsafe { System.realloc(p, l, n) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
-
-/// The counter is global: the tests of this file take turns.
-static SERIAL: Mutex<()> = Mutex::new(());
-
-fn counted<R>(f: impl FnOnce() -> R) -> (R, u64) {
-    let before = ALLOCS.load(Ordering::SeqCst);
-    let r = f();
-    (r, ALLOCS.load(Ordering::SeqCst) - before)
-}
+#[path = "support/counting_alloc.rs"]
+mod counting_alloc;
+use counting_alloc::counted;
 
 fn shipped_table() -> ResponseTable {
     ResponseTable::load(
@@ -56,7 +27,6 @@ fn shipped_table() -> ResponseTable {
 
 #[test]
 fn estimator_updates_and_summaries_do_not_allocate() {
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let table = shipped_table();
     let cfg = EstimatorConfig::default();
     assert_eq!(cfg.method, "linear");
@@ -133,7 +103,6 @@ fn drive(t0_s: f64, cruise_s: f64, v0_kmh: f64, decel_g: f64, hold_s: f64) -> Ve
 
 #[test]
 fn the_observer_allocates_nothing_per_frame() {
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let mut obs = Observer::new(ObserverConfig::default(), Some(shipped_table())).unwrap();
     // Warm-up: the first events size the extractor's buffers (the longest event so far).
     let mut t = 0.0;

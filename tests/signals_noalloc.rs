@@ -3,34 +3,14 @@
 
 mod signals_common;
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicU64, Ordering};
-
 use shimmy::signals::checksum::ChecksumKind;
 use shimmy::signals::Mapper;
 use shimmy::wire::Frame;
 use signals_common::{mapping, reference_db};
 
-struct Counting;
-
-static ALLOCS: AtomicU64 = AtomicU64::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        unsafe { System.alloc(l) }
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        unsafe { System.dealloc(p, l) }
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        unsafe { System.realloc(p, l, n) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
+#[path = "support/counting_alloc.rs"]
+mod counting_alloc;
+use counting_alloc::allocations;
 
 #[test]
 fn on_frame_and_snapshot_do_not_allocate() {
@@ -67,7 +47,7 @@ fn on_frame_and_snapshot_do_not_allocate() {
         frames.push(Frame::classic(t, 0x7DF, false, &[0; 8]).unwrap()); // unmapped
     }
     let mut accepted = 0u64;
-    let before = ALLOCS.load(Ordering::Relaxed);
+    let before = allocations();
     for f in &frames {
         if let Some(u) = m.on_frame(f) {
             accepted += matches!(u.outcome, shimmy::signals::Outcome::Accepted(_)) as u64;
@@ -76,7 +56,7 @@ fn on_frame_and_snapshot_do_not_allocate() {
         std::hint::black_box(s);
     }
     m.advance(1_000_000_000_000);
-    let after = ALLOCS.load(Ordering::Relaxed);
+    let after = allocations();
     assert_eq!(after - before, 0, "allocations on the per-frame path");
     assert!(accepted > 9000, "{accepted}");
     let st = m.stats();
