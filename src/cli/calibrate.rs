@@ -699,23 +699,21 @@ pub fn assemble_table(
             grid.terms.len()
         );
     }
-    keep_mixture_vehicles(&mut t, grid.mixture_vehicles)?;
+    keep_mixture_vehicles(&mut t, grid.mixture_vehicles);
     t.validate()?;
     Ok(t)
 }
 
 /// Keeps the cells of the first `keep` drawn vehicles (all when `keep` is at least their
-/// number, or when the table has no nuisance model). The cells serve method "mixture" only and
-/// grow with vehicles × speeds; a table whose nuisance model describes the vehicles can do
-/// without them (`keep = 0`).
-fn keep_mixture_vehicles(t: &mut ResponseTable, keep: u32) -> anyhow::Result<()> {
+/// number, or when the table has no nuisance model, e.g. `--exact-vehicle`; `--emulate`
+/// tables do not come here). The cells serve method "mixture" only and grow with vehicles ×
+/// speeds; a table whose nuisance model describes the vehicles can do without them
+/// (`keep = 0`).
+fn keep_mixture_vehicles(t: &mut ResponseTable, keep: u32) {
     let nm = t.vehicles;
-    if keep >= nm {
-        return Ok(());
-    }
-    if t.linear.is_none() {
+    if keep >= nm || t.linear.is_none() {
         // Without the nuisance model the cells are all the table has.
-        return Ok(());
+        return;
     }
     let per_vehicle = t.speed_kmh.len() * t.decel_g.len();
     let per_clearance = nm as usize * per_vehicle;
@@ -727,7 +725,6 @@ fn keep_mixture_vehicles(t: &mut ResponseTable, keep: u32) -> anyhow::Result<()>
     t.cells = cells;
     t.vehicles = keep;
     t.provenance += &format!("; mixture cells of {keep} of the {nm} vehicles");
-    Ok(())
 }
 
 /// What a table records of how it was built.
@@ -832,12 +829,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             NuisanceRanges::default()
         },
         terms: parse_terms(&args.terms).context("--terms")?,
-        // Tables without the nuisance model keep all their cells.
-        mixture_vehicles: if args.exact_vehicle || args.emulate > 0 {
-            u32::MAX
-        } else {
-            args.mixture_vehicles
-        },
+        mixture_vehicles: args.mixture_vehicles,
     };
     let events = match &args.events_in {
         Some(path) => {

@@ -81,6 +81,10 @@ pub struct RawEvent {
     pub phase_cos: f64,
 }
 
+/// Quadrature points over Δ of one event whose phase difference is unknown: the emulated cells'
+/// means and the estimator's hypothesis "event" ([`super::marginal`]).
+pub const EVENT_PHASES: usize = 16;
+
 /// Points of ψ = cos Δ for a phase difference Δ uniform over [0, π] (the midpoints of `n` equal
 /// bins): averaging over them marginalises the phase of one event.
 pub fn phase_quadrature(n: usize) -> impl Iterator<Item = f64> {
@@ -106,7 +110,7 @@ pub fn emulate_cells(
     min_std: f64,
 ) -> anyhow::Result<Vec<Cell>> {
     let lm = super::linear::fit(raw, table_coords, n_clearance, n_speed, terms, min_std)?;
-    let phases: Vec<f64> = phase_quadrature(16).collect();
+    let phases: Vec<f64> = phase_quadrature(EVENT_PHASES).collect();
     let mut cells = Vec::with_capacity(n_clearance * synth.len() * n_speed * decels.len());
     for ic in 0..n_clearance {
         let s = lm.total_std[ic];

@@ -606,19 +606,6 @@ impl LinearModel {
         let n = basis.n;
         std::array::from_fn(|k| dot(&basis.value[..n], &coefs.c[k][..n]))
     }
-
-    /// The prediction at clearance position `(ic, wc)` and speed position `(iv, wv)` for an
-    /// event whose term values are `basis` ([`Self::basis_into`]). No allocation.
-    pub fn predict(
-        &self,
-        pos_c: (usize, f64),
-        pos_v: (usize, f64),
-        basis: &Basis,
-    ) -> LinearPrediction {
-        let mut coefs = Coefs::default();
-        self.coef_interp(pos_c, pos_v, &mut coefs);
-        self.predict_with(&coefs, basis)
-    }
 }
 
 /// Interpolated coefficients of the three features ([`LinearModel::coef_interp`]).
@@ -775,7 +762,9 @@ mod tests {
         x[PHASE] = -0.5;
         let mut basis = Basis::default();
         lm.basis_into(&x, 0.55, &mut basis);
-        let p = lm.predict((0, 0.0), (1, 0.5), &basis);
+        let mut coefs = Coefs::default();
+        lm.coef_interp((0, 0.0), (1, 0.5), &mut coefs);
+        let p = lm.predict_with(&coefs, &basis);
         let want = -3.0 + 0.15 + 0.4 - 0.4 * 0.512 + 0.075;
         assert!((p.a[0] - want).abs() < 0.08, "{:?} vs {want}", p.a);
         let l5 = lm.closed_form().position(|j| j == 5).unwrap();

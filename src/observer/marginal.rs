@@ -52,7 +52,7 @@
 
 use nalgebra::{Matrix3, SMatrix, SVector};
 
-use super::emulate::phase_quadrature;
+use super::emulate::{phase_quadrature, EVENT_PHASES};
 use super::estimator::EstimatorConfig;
 use super::linear::{Basis, Coefs, LinearModel, N_FEAT, N_LIN, N_VARS, PHASE};
 use super::table::{bracket, ResponseTable};
@@ -63,8 +63,6 @@ type VecX = SVector<f64, NX>;
 
 /// Variance of the uniform [−1, 1] prior of each nuisance coordinate.
 const COORD_VAR: f64 = 1.0 / 3.0;
-/// Quadrature points over Δ of one event (hypothesis "event").
-const EVENT_PHASES: usize = 16;
 
 #[derive(Clone, Copy)]
 struct Stats {

@@ -30,8 +30,8 @@ use serde::{Deserialize, Serialize};
 use super::sensor::SensorModel;
 
 pub const FORMAT: &str = "shimmy response table v4";
-/// The nuisance model of format v2 of `linear` (17 fixed regressors, no unbalance phase):
-/// loaded without it.
+/// The format before the nuisance model took a list of terms: its `linear` (17 fixed
+/// regressors, no unbalance phase) is dropped on load.
 pub const FORMAT_V3: &str = "shimmy response table v3";
 /// Without the cruise statistic (`cruise = false`).
 pub const FORMAT_V2: &str = "shimmy response table v2";
