@@ -10,10 +10,11 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
 
-use shimmy::events::Sample;
 use shimmy::observer::estimator::{Estimator, EstimatorConfig};
 use shimmy::observer::table::{Cell, ResponseTable};
 
+#[path = "../tests/support/braking_stream.rs"]
+mod braking_stream;
 #[path = "../tests/support/synthetic_table.rs"]
 mod synthetic_table;
 use shimmy::observer::{Observer, ObserverConfig};
@@ -47,40 +48,12 @@ fn table() -> ResponseTable {
     synthetic(clearance_mm, speed_kmh, decel_g, vehicles, cells)
 }
 
-/// One stop from 55 km/h at 0.5 g with 2 s before and after: 100 Hz steering (0.1 deg steps),
-/// 50 Hz speed.
-fn event_stream() -> Vec<Sample> {
-    let mut out = Vec::new();
-    let mut v: f64 = 55.0 / 3.6;
-    for k in 0..8000 {
-        let t = k as f64 * 1e-3;
-        let braking = t >= 2.0 && v > 0.0 || (t >= 2.0 && t < 6.5);
-        let a = if braking && v > 0.0 { 0.5 * 9.81 } else { 0.0 };
-        v = (v - a * 1e-3).max(0.0);
-        let mut s = Sample {
-            t_ns: (t * 1e9) as i64,
-            brake: Some(braking),
-            ..Default::default()
-        };
-        if k % 10 == 0 {
-            let deg = 0.15 * (2.0 * std::f64::consts::PI * 6.2 * t).sin() + 0.03;
-            s.steer_rad = Some(((deg / 0.1).round() * 0.1f64).to_radians());
-        }
-        if k % 20 == 5 {
-            s.speed_mps = Some(v);
-        }
-        if s.steer_rad.is_some() || s.speed_mps.is_some() {
-            out.push(s);
-        }
-    }
-    out
-}
-
 fn bench(c: &mut Criterion) {
     let shipped = ResponseTable::load(std::path::Path::new("config/vehicle/default_table.json"))
         .expect("the shipped table (run from the package root)");
     let t = &shipped;
-    let stream = event_stream();
+    // One stop from 55 km/h at 0.5 g after 2 s of cruise, 1.5 s standing.
+    let stream = braking_stream::drive(0.0, 2.0, 55.0, 0.5, 1.5);
     c.bench_function(
         "observer: one braking event end to end (detector+features+posterior, linear)",
         |b| {
