@@ -23,7 +23,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use crate::plant::ModelPlant;
+use crate::plant::{ModelPlant, Plant};
 use crate::{FirmwareSim, RunInfo, Scenario};
 use shimmy::analysis::sweep::{default_threads, par_map};
 use shimmy::cli::estimate::estimate_files;
@@ -94,6 +94,27 @@ pub struct FleetArgs {
     /// seeds' vehicles and drives stay the same; use a separate --work-dir per value.
     #[arg(long, default_value = "none", value_parser = ["none", "per-stop"])]
     pub phase_change: String,
+    /// Measure the same vehicles again: replicate 0 (the default) is the drive as its seed
+    /// draws it; replicate r > 0 keeps everything the seed fixes about the vehicle (clearance,
+    /// parameters, unbalance and its two phases, road-noise level, the braking plan) and draws
+    /// the road noise, the driver's lane keeping and the sensor's noise and offset anew from
+    /// another seed. Repeated drives of one vehicle show what an event's features scatter by
+    /// when nothing about the vehicle is unknown (the feature oracle of docs/ACCURACY.md). Use
+    /// a separate --work-dir per value.
+    #[arg(long, default_value_t = 0)]
+    pub replicate: u64,
+}
+
+/// The scenario seed of replicate `r` of the vehicle with `seed` (r = 0: the seed itself).
+pub fn replicate_seed(seed: u64, r: u64) -> u64 {
+    if r == 0 {
+        return seed;
+    }
+    // SplitMix64 of (seed, r): far from any seed base a fleet or table uses.
+    let mut z = seed ^ r.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ 0x5eed_0f_4e91_1ca7e;
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
 }
 
 /// What the scores need from a vehicle's ground truth, kept next to its log for --reuse.
@@ -108,6 +129,9 @@ pub struct EvalTruth {
     /// `--phase-change` of the run that wrote the log.
     #[serde(default = "phase_none")]
     pub phase_change: String,
+    /// `--replicate` of the run that wrote the log.
+    #[serde(default)]
+    pub replicate: u64,
 }
 
 fn phase_none() -> String {
@@ -235,6 +259,14 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
                 args.phase_change
             );
         }
+        if e.replicate != args.replicate {
+            anyhow::bail!(
+                "{} is for --replicate {}, not {}",
+                eval_path.display(),
+                e.replicate,
+                args.replicate
+            );
+        }
         if e.seed != seed || e.events != args.events {
             anyhow::bail!(
                 "{} is for seed {} with {} events, not seed {seed} with {}",
@@ -249,8 +281,9 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
     let (p, noise, events) = (plan.params, plan.road_noise_nm, plan.events);
     let vfile = dir.join(format!("vehicle_{seed}.toml"));
     std::fs::write(&vfile, toml::to_string(&p)?)?;
+    let noise_seed = replicate_seed(seed, args.replicate);
     let text = vehicle_scenario(
-        seed,
+        noise_seed,
         c_mm,
         &format!("vehicle_{seed}.toml"),
         p.excitation.unbalance_kgm,
@@ -261,7 +294,12 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
     let sc_path = dir.join(format!("fleet_{seed}.toml"));
     std::fs::write(&sc_path, &text)?;
     let sc = Scenario::parse(&text, &sc_path.display().to_string())?;
-    let plant = ModelPlant::new(&sc, Some(&vfile))?;
+    let mut plant = ModelPlant::new(&sc, Some(&vfile))?;
+    if noise_seed != seed {
+        // The vehicle's wheels keep the unbalance phases its own seed draws (MODEL.md §7).
+        let phases = shimmy::model::excitation::Excitation::new(seed, 0.0, 1.0, 1e-3).phases;
+        plant.set_unbalance_phases(phases);
+    }
     let mut sim = FirmwareSim::new(
         &sc,
         plant,
@@ -287,6 +325,7 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
         events: args.events,
         clearance_true_mm: c_mm,
         phase_change: args.phase_change.clone(),
+        replicate: args.replicate,
         sw_amplitudes_55_deg: truth
             .events
             .iter()
@@ -665,6 +704,51 @@ mod tests {
         assert!(e.to_string().contains("not --clearance-mm 0.3"), "{e}");
         let e = vehicle_log(0, &args(&["--reuse"], &db), &db).unwrap_err();
         assert!(e.to_string().contains("(a --clearance-mm twin?)"), "{e}");
+        std::fs::remove_dir_all(&base).unwrap();
+    }
+
+    /// `--replicate 1` drives the same vehicle again: vehicle file, plan, clearance and wheel
+    /// phases are the seed's; only the noise seed (and so the frames) differ.
+    #[test]
+    fn a_replicate_keeps_the_vehicle_and_redraws_only_the_noise() {
+        let base = std::env::temp_dir().join(format!("fleet-rep-{}", std::process::id()));
+        let (da, db) = (base.join("r0"), base.join("r1"));
+        std::fs::create_dir_all(&da).unwrap();
+        std::fs::create_dir_all(&db).unwrap();
+        let (la, ea) = vehicle_log(0, &args(&[], &da), &da).unwrap();
+        let (lb, eb) = vehicle_log(0, &args(&["--replicate", "1"], &db), &db).unwrap();
+        assert_eq!(ea.clearance_true_mm, eb.clearance_true_mm);
+        assert_eq!((ea.replicate, eb.replicate), (0, 1));
+        let read = |d: &Path, f: &str| std::fs::read_to_string(d.join(f)).unwrap();
+        assert_eq!(
+            read(&da, "vehicle_4242.toml"),
+            read(&db, "vehicle_4242.toml")
+        );
+        let (sa, sb) = (read(&da, "fleet_4242.toml"), read(&db, "fleet_4242.toml"));
+        fn strip(s: &str) -> Vec<&str> {
+            s.lines()
+                .filter(|l| !l.starts_with("seed") && !l.starts_with("name"))
+                .collect()
+        }
+        assert_ne!(sa, sb);
+        assert_eq!(strip(&sa), strip(&sb));
+        assert!(sb.contains(&format!("seed = {}", replicate_seed(4242, 1))));
+        assert_ne!(std::fs::read(&la).unwrap(), std::fs::read(&lb).unwrap());
+        let phase = |d: &Path| -> Vec<f64> {
+            let t: serde_json::Value =
+                serde_json::from_str(&read(d, "fleet_4242.truth.json")).unwrap();
+            t["events"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|e| e["unbalance_phase_cos"].as_f64().unwrap())
+                .collect()
+        };
+        assert_eq!(phase(&da), phase(&db));
+        // A replicate seed is none of the first million seeds, and --reuse tells replicates apart.
+        assert!((1..50).all(|r| replicate_seed(4242, r) > 1 << 20));
+        let e = vehicle_log(0, &args(&["--reuse"], &db), &db).unwrap_err();
+        assert!(e.to_string().contains("not 0"), "{e}");
         std::fs::remove_dir_all(&base).unwrap();
     }
 
