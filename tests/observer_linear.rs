@@ -344,3 +344,49 @@ fn either_tells_a_kept_phase_difference_from_a_changing_one() {
         assert!(err < 0.15, "mean relative error {err}");
     }
 }
+
+/// `prior_range_mm`: before any event the estimate is the prior's (its median the range's
+/// geometric middle, its interval inside the range when cut off there); events move it as
+/// before; a range holding none of the table's clearances, or a reversed one, is refused.
+#[test]
+fn the_clearance_prior_is_what_the_posterior_starts_from_and_events_outweigh_it() {
+    let t = table(true);
+    let cut = EstimatorConfig {
+        prior_range_mm: Some([0.05, 0.2]),
+        ..linear_cfg()
+    };
+    let s = Estimator::new(&t, cut.clone()).unwrap().summary();
+    assert!((s.median_mm / 0.1 - 1.0).abs() < 0.1, "{s:?}");
+    // The quantiles spread each grid point's mass over its cell (a grid step is ×1.38 here).
+    assert!(s.q05_mm > 0.04 && s.q95_mm < 0.25, "{s:?}");
+    let flat = Estimator::new(&t, linear_cfg()).unwrap().summary();
+    assert!(
+        flat.q95_mm / flat.q05_mm > 2.0 * s.q95_mm / s.q05_mm,
+        "{flat:?} {s:?}"
+    );
+    // A soft fall-off leaves mass outside the range.
+    let soft = EstimatorConfig {
+        prior_tail: 0.5,
+        ..cut.clone()
+    };
+    let s2 = Estimator::new(&t, soft.clone()).unwrap().summary();
+    assert!(s2.q95_mm > s.q95_mm && s2.q05_mm < s.q05_mm, "{s2:?} {s:?}");
+    // 30 events of a 0.3 mm vehicle: the soft prior follows them out of the range.
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let v = draw_nuisances(&mut rng);
+    let mut est = Estimator::new(&t, soft).unwrap();
+    drive(&mut est, &t, &v, 0.3, 30, 0.0, &mut rng);
+    let s3 = est.summary();
+    assert!(s3.median_mm > 0.2 && s3.q95_mm >= 0.3, "{s3:?}");
+    for (range, msg) in [
+        ([0.7, 0.9], "holds none of the table's clearances"),
+        ([0.2, 0.05], "0 < low < high"),
+    ] {
+        let bad = EstimatorConfig {
+            prior_range_mm: Some(range),
+            ..linear_cfg()
+        };
+        let e = Estimator::new(&t, bad).err().expect("refused");
+        assert!(e.to_string().contains(msg), "{e}");
+    }
+}

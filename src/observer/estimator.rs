@@ -83,6 +83,14 @@ pub struct EstimatorConfig {
     /// Method "linear": grid points of any further coordinate the table's model grids (e.g.
     /// the unbalance, 1-64).
     pub unbalance_grid: usize,
+    /// The clearances (mm) the monitored vehicles are expected to have: the prior is uniform
+    /// in ln c over [low, high] and falls off outside as a half-normal in ln c with
+    /// `prior_tail` as its standard deviation. Unset: uniform in ln c over the table's whole
+    /// clearance axis (which is what the estimator did before this key existed).
+    pub prior_range_mm: Option<[f64; 2]>,
+    /// Standard deviation (ln units) of the prior's fall-off outside `prior_range_mm`; 0 cuts
+    /// it off there.
+    pub prior_tail: f64,
 }
 
 impl Default for EstimatorConfig {
@@ -105,6 +113,8 @@ impl Default for EstimatorConfig {
             phase: "either".into(),
             phase_grid: 8,
             unbalance_grid: 7,
+            prior_range_mm: None,
+            prior_tail: 0.0,
         }
     }
 }
@@ -162,6 +172,15 @@ impl EstimatorConfig {
                 self.phase
             );
         }
+        if let Some([lo, hi]) = self.prior_range_mm {
+            if !(lo.is_finite() && hi.is_finite() && lo > 0.0 && hi > lo) {
+                anyhow::bail!(
+                    "estimator.prior_range_mm: must be [low, high] with 0 < low < high (got \
+                     [{lo}, {hi}])"
+                );
+            }
+        }
+        non_negative("prior_tail", self.prior_tail)?;
         for (key, v) in [
             ("grid_refine", self.grid_refine),
             ("damping_grid", self.damping_grid),
@@ -184,6 +203,37 @@ impl EstimatorConfig {
             ..EstimatorConfig::default()
         }
     }
+}
+
+/// ln of the clearance prior at each grid point `ln_c` (up to a constant; see
+/// [`EstimatorConfig::prior_range_mm`]).
+fn log_prior(ln_c: &[f64], cfg: &EstimatorConfig) -> anyhow::Result<Vec<f64>> {
+    let Some([lo, hi]) = cfg.prior_range_mm else {
+        return Ok(vec![0.0; ln_c.len()]);
+    };
+    let (a, b) = (lo.ln(), hi.ln());
+    let lp: Vec<f64> = ln_c
+        .iter()
+        .map(|&x| {
+            let d = if x < a { a - x } else { (x - b).max(0.0) };
+            if d == 0.0 {
+                0.0
+            } else if cfg.prior_tail > 0.0 {
+                -0.5 * (d / cfg.prior_tail).powi(2)
+            } else {
+                f64::NEG_INFINITY
+            }
+        })
+        .collect();
+    if lp.iter().all(|l| *l == f64::NEG_INFINITY) {
+        anyhow::bail!(
+            "estimator.prior_range_mm: [{lo}, {hi}] mm holds none of the table's clearances \
+             ({:.3}-{:.3} mm) and prior_tail is 0",
+            ln_c.first().map_or(0.0, |x| x.exp()),
+            ln_c.last().map_or(0.0, |x| x.exp())
+        );
+    }
+    Ok(lp)
 }
 
 /// What the posterior says now.
@@ -215,6 +265,8 @@ pub struct Estimator {
     scratch: Vec<f64>,
     /// Marginal posterior probabilities over the clearance grid.
     marg: Vec<f64>,
+    /// ln of the clearance prior at each grid point (up to a constant).
+    log_prior: Vec<f64>,
     use_rms: bool,
     use_peak: bool,
     last_odometer_m: Option<f64>,
@@ -248,11 +300,19 @@ impl Estimator {
         };
         let n = ln_c.len();
         let joint = n * n_m;
+        let log_prior = log_prior(&ln_c, &cfg)?;
+        let mut marg: Vec<f64> = log_prior.iter().map(|l| l.exp()).collect();
+        let total: f64 = marg.iter().sum();
+        marg.iter_mut().for_each(|m| *m /= total);
+        let log_p = (0..joint)
+            .map(|i| marg[i / n_m.max(1)].ln() - (n_m.max(1) as f64).ln())
+            .collect();
         Ok(Estimator {
             linear,
-            log_p: vec![-(joint.max(1) as f64).ln(); joint],
+            log_p,
             scratch: vec![0.0; joint],
-            marg: vec![1.0 / n as f64; n],
+            marg,
+            log_prior,
             n_m,
             ln_c,
             use_rms,
@@ -391,7 +451,7 @@ impl Estimator {
             let mask = [self.use_rms, self.use_peak, zc.is_some()];
             let z3 = [z[0], z[1], zc.unwrap_or(0.0)];
             lp.update(z3, &mask, v0_kmh, decel_g);
-            lp.probabilities_into(&mut self.marg);
+            lp.probabilities_into(&mut self.marg, &self.log_prior);
             self.events_used += 1;
             return;
         }

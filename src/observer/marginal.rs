@@ -415,8 +415,9 @@ impl LinearPosterior {
     }
 
     /// Writes the normalised posterior probabilities of the grid points into `out` (one per
-    /// point of [`fine_grid`]).
-    pub fn probabilities_into(&mut self, out: &mut [f64]) {
+    /// point of [`fine_grid`]), with `log_prior` the ln of the clearance prior at each point
+    /// (up to a constant; not raised to the evidence power).
+    pub fn probabilities_into(&mut self, out: &mut [f64], log_prior: &[f64]) {
         let mut mx = f64::NEG_INFINITY;
         let (nv, ne) = (self.points_v.len(), self.points_e.len());
         for (g, o) in out.iter_mut().enumerate().take(self.pos.len()) {
@@ -446,7 +447,7 @@ impl LinearPosterior {
             } else {
                 0.5
             };
-            *o = self.power * l;
+            *o = self.power * l + log_prior[g];
             mx = mx.max(*o);
         }
         if !mx.is_finite() {
