@@ -676,16 +676,26 @@ mod tests {
         FleetArgs::parse_from(a)
     }
 
+    /// Vehicle 0 of seed 4242 as drawn (in `base/a`) and with `extra` options (in `base/b`):
+    /// (base, [(dir, log, truth); 2]).
+    fn drawn_and(tag: &str, extra: &[&str]) -> (PathBuf, [(PathBuf, PathBuf, EvalTruth); 2]) {
+        let base = std::env::temp_dir().join(format!("fleet-{tag}-{}", std::process::id()));
+        let run = |sub: &str, opts: &[&str]| {
+            let d = base.join(sub);
+            std::fs::create_dir_all(&d).unwrap();
+            let (log, e) = vehicle_log(0, &args(opts, &d), &d).unwrap();
+            (d, log, e)
+        };
+        let a = run("a", &[]);
+        let b = run("b", extra);
+        (base, [a, b])
+    }
+
     /// `--clearance-mm` makes a twin: the same vehicle (nuisances) and the same drive as the
     /// drawn fleet, with only the joints changed.
     #[test]
     fn a_twin_vehicle_differs_only_in_its_clearance() {
-        let base = std::env::temp_dir().join(format!("fleet-twin-{}", std::process::id()));
-        let (da, db) = (base.join("drawn"), base.join("twin"));
-        std::fs::create_dir_all(&da).unwrap();
-        std::fs::create_dir_all(&db).unwrap();
-        let (_, ea) = vehicle_log(0, &args(&[], &da), &da).unwrap();
-        let (_, eb) = vehicle_log(0, &args(&["--clearance-mm", "0.25"], &db), &db).unwrap();
+        let (base, [(da, _, ea), (db, _, eb)]) = drawn_and("twin", &["--clearance-mm", "0.25"]);
         assert_eq!(ea.clearance_true_mm, vehicle_plan(4242, 1).clearance_mm);
         assert_eq!(eb.clearance_true_mm, 0.25);
         let read = |d: &Path, f: &str| std::fs::read_to_string(d.join(f)).unwrap();
@@ -711,12 +721,7 @@ mod tests {
     /// phases are the seed's; only the noise seed (and so the frames) differ.
     #[test]
     fn a_replicate_keeps_the_vehicle_and_redraws_only_the_noise() {
-        let base = std::env::temp_dir().join(format!("fleet-rep-{}", std::process::id()));
-        let (da, db) = (base.join("r0"), base.join("r1"));
-        std::fs::create_dir_all(&da).unwrap();
-        std::fs::create_dir_all(&db).unwrap();
-        let (la, ea) = vehicle_log(0, &args(&[], &da), &da).unwrap();
-        let (lb, eb) = vehicle_log(0, &args(&["--replicate", "1"], &db), &db).unwrap();
+        let (base, [(da, la, ea), (db, lb, eb)]) = drawn_and("rep", &["--replicate", "1"]);
         assert_eq!(ea.clearance_true_mm, eb.clearance_true_mm);
         assert_eq!((ea.replicate, eb.replicate), (0, 1));
         let read = |d: &Path, f: &str| std::fs::read_to_string(d.join(f)).unwrap();
