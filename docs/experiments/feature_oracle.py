@@ -67,13 +67,6 @@ def match(obs, rep, tol=1.0):
     return np.array(out)
 
 
-def c_s(path):
-    for line in open(path):
-        if line.startswith("kingpin_damping_nms_per_rad ="):
-            return float(line.split("=")[1].split("#")[0])
-    raise ValueError(path)
-
-
 def loglik(zo, mu, cov, dims):
     """Gaussian log density of zo[dims] under (mu, cov)[dims]."""
     d = np.array(dims)
@@ -179,36 +172,46 @@ def bracket(axis, x):
     return i, (x - axis[i]) / (axis[i + 1] - axis[i])
 
 
+def clearance_pos(table, ln_c):
+    """(index, weight) of ln c on the table's clearance axis."""
+    return bracket([math.log(c) for c in table["clearance_mm"]], ln_c)
+
+
+def law_coef(table, pos, v0):
+    """The law's coefficients (3 features x terms) at clearance position `pos` and speed v0,
+    interpolated bilinearly as src/observer/linear.rs `coef_interp` does."""
+    lin = table["linear"]
+    coef = lin["coef"]
+    nk, nv = len(lin["terms"]), len(table["speed_kmh"])
+    (ic, wc), (iv, wv) = pos, bracket(table["speed_kmh"], v0)
+    b = np.zeros((3, nk))
+    for dc, fc in ((0, 1 - wc), (1, wc)):
+        for dv, fv in ((0, 1 - wv), (1, wv)):
+            i = ((ic + dc) * nv + iv + dv) * 3 * nk
+            b += fc * fv * coef[i:i + 3 * nk].reshape(3, nk)
+    return b
+
+
+def table_cov(table, key, pos):
+    """The table's `within` or `between` covariance at clearance position `pos`."""
+    ic, wc = pos
+    m = table["linear"][key]
+    return (1 - wc) * np.array(m[ic]) + wc * np.array(m[ic + 1])
+
+
 def table_covs(table, grid):
     """The table's within-vehicle event covariance at each grid clearance (ln c interpolated)."""
-    lin = table["linear"]
-    lc = [math.log(c) for c in table["clearance_mm"]]
-    out = []
-    for c in grid:
-        ic, wc = bracket(lc, math.log(c))
-        out.append((1 - wc) * np.array(lin["within"][ic]) + wc * np.array(lin["within"][ic + 1]))
-    return out
+    return [table_cov(table, "within", clearance_pos(table, math.log(c))) for c in grid]
 
 
 def law_means(table, x, events, grid):
     """The law's feature means (event x grid clearance x 3) at the vehicle's true variables."""
-    lin = table["linear"]
-    terms, coef = lin["terms"], lin["coef"]
-    nk, nv = len(terms), len(table["speed_kmh"])
-    lc = [math.log(c) for c in table["clearance_mm"]]
+    terms = table["linear"]["terms"]
     out = np.zeros((len(events), len(grid), 3))
     for e, (v0, d) in enumerate(events):
         basis = np.array([term_value(t, x, d) for t in terms])
-        iv, wv = bracket(table["speed_kmh"], v0)
         for g, c in enumerate(grid):
-            ic, wc = bracket(lc, math.log(c))
-            for f in range(3):
-                b = 0.0
-                for dc, fc in ((0, 1 - wc), (1, wc)):
-                    for dv, fv in ((0, 1 - wv), (1, wv)):
-                        i = (((ic + dc) * nv + iv + dv) * 3 + f) * nk
-                        b += fc * fv * (basis @ np.array(coef[i:i + nk]))
-                out[e, g, f] = b
+            out[e, g] = law_coef(table, clearance_pos(table, math.log(c)), v0) @ basis
     return out
 
 
@@ -225,10 +228,7 @@ def law_marginal(table, events, zo, n_draw=MC_DRAWS, seed=MC_SEED, gauss=(), kno
     with the law's coefficients interpolated in ln c (as the product's fine grid). Returns the
     posterior median and 90 % interval for each clearance prior of `priors` (log-uniform)."""
     rng = np.random.default_rng(seed)
-    lin = table["linear"]
-    terms, coef = lin["terms"], np.array(lin["coef"])
-    nk, nv = len(terms), len(table["speed_kmh"])
-    lc = [math.log(c) for c in table["clearance_mm"]]
+    terms = table["linear"]["terms"]
     fine = np.linspace(math.log(0.02), math.log(0.6), 49)
     x = np.concatenate([rng.uniform(-1, 1, (n_draw, 7)),
                         np.cos(rng.uniform(0, math.pi, (n_draw, 1)))], axis=1)
@@ -238,27 +238,20 @@ def law_marginal(table, events, zo, n_draw=MC_DRAWS, seed=MC_SEED, gauss=(), kno
         x[:, k] = v
     w = rng.standard_normal((n_draw, 3))
     ll = np.zeros((len(fine), n_draw))
-    cells = [bracket(lc, g) for g in fine]
+    cells = [clearance_pos(table, g) for g in fine]
     covs = []
-    for ic, wc in cells:
-        within = (1 - wc) * np.array(lin["within"][ic]) + wc * np.array(lin["within"][ic + 1])
-        between = (1 - wc) * np.array(lin["between"][ic]) + wc * np.array(lin["between"][ic + 1])
+    for pos in cells:
+        within, between = table_cov(table, "within", pos), table_cov(table, "between", pos)
         if os.environ.get("ORACLE_NO_BETWEEN"):  # leave out the law's per-vehicle misfit
             between = np.zeros((3, 3))
         covs.append((within, np.linalg.cholesky(between + 1e-9 * np.eye(3))))
     cols = [x[:, k] for k in range(8)]
     for e, (v0, d) in enumerate(events):
         basis = np.stack([np.broadcast_to(term_value(t, cols, d), (n_draw,)) for t in terms], 1)
-        iv, wv = bracket(table["speed_kmh"], v0)
         dims = [k for k in range(3) if not math.isnan(zo[e][k])]
-        for g, (ic, wc) in enumerate(cells):
-            b = np.zeros((3, nk))
-            for dc, fc in ((0, 1 - wc), (1, wc)):
-                for dv, fv in ((0, 1 - wv), (1, wv)):
-                    i = (((ic + dc) * nv + iv + dv) * 3) * nk
-                    b += fc * fv * coef[i:i + 3 * nk].reshape(3, nk)
+        for g, pos in enumerate(cells):
             within, lb = covs[g]
-            mu = basis @ b.T + w @ lb.T  # draws x 3
+            mu = basis @ law_coef(table, pos, v0).T + w @ lb.T  # draws x 3
             r = zo[e][dims] - mu[:, dims]
             cw = within[np.ix_(dims, dims)]
             ci = np.linalg.inv(cw)
@@ -289,6 +282,8 @@ def main(args):
     n_rep = sum(os.path.isdir(os.path.join(orc, f"c0_r{r}")) for r in range(1, 50))
     variants = {"rms+peak+cruise": [0, 1, 2], "rms+peak": [0, 1], "rms": [0]}
     table = json.load(open(os.environ["ORACLE_TABLE"])) if os.environ.get("ORACLE_TABLE") else None
+    if table:
+        table["linear"]["coef"] = np.array(table["linear"]["coef"])  # once, for law_coef
     extra = []
     rows = []
     for folder, seed in plan["sel"]:
@@ -296,14 +291,17 @@ def main(args):
             continue
         truth = json.load(open(os.path.join(folder, f"fleet_{seed}.eval.json")))
         c = truth["clearance_true_mm"]
-        row = {"seed": seed, "c": c, "c_s": c_s(os.path.join(folder, f"vehicle_{seed}.toml"))}
+        row = {"seed": seed, "c": c, "c_s": toml_values(os.path.join(
+            folder, f"vehicle_{seed}.toml"))["kingpin_damping_nms_per_rad"]}
         obs, zo, mus, covs = replicate_stats(orc, seed, grid, n_rep)
         for name, dims in variants.items():
             row[name] = posterior(zo, mus, covs, grid, dims)
         if table:
             # the shipped law at the vehicle's true nuisances and phase, in place of the
             # replicates' means (the replicates' scatter kept)
-            law = law_means(table, law_vars(folder, seed), [(o[2], o[3]) for o in obs], grid)
+            truth_x = law_vars(folder, seed)
+            ev = [(o[2], o[3]) for o in obs]  # (v0 km/h, decel g) of each event
+            law = law_means(table, truth_x, ev, grid)
             law = np.transpose(law, (1, 0, 2))
             row["law at truth"] = posterior(zo, law, covs, grid, [0, 1, 2])
             # the same two with the table's event scatter (within-vehicle covariance, pooled
@@ -317,14 +315,11 @@ def main(args):
                 # e.g. ORACLE_KNOWN="5;1;7;1,5,7": the law with these variables known
                 # (0-6: x0-x6, 7: u), the others unknown
                 ks = [int(k) for k in spec.split(",")]
-                truth_x = law_vars(folder, seed)
                 row[f"known {spec}"] = law_marginal(
-                    table, [(o[2], o[3]) for o in obs], zo,
-                    known={k: truth_x[k] for k in ks})[0]
+                    table, ev, zo, known={k: truth_x[k] for k in ks})[0]
                 if f"known {spec}" not in extra:
                     extra.append(f"known {spec}")
             if os.environ.get("ORACLE_MC"):
-                ev = [(o[2], o[3]) for o in obs]
                 (row["law, nuisances unknown"],
                  row["same, prior 0.02-0.6"]) = law_marginal(table, ev, zo)
                 if os.environ.get("ORACLE_MC") == "2":
