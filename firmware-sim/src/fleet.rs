@@ -297,7 +297,7 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
     let mut plant = ModelPlant::new(&sc, Some(&vfile))?;
     if noise_seed != seed {
         // The vehicle's wheels keep the unbalance phases its own seed draws (MODEL.md §7).
-        let phases = shimmy::model::excitation::Excitation::new(seed, 0.0, 1.0, 1e-3).phases;
+        let phases = shimmy::model::excitation::Excitation::phases_of(seed);
         plant.set_unbalance_phases(phases);
     }
     let mut sim = FirmwareSim::new(

@@ -27,11 +27,21 @@ pub struct Excitation {
 }
 
 impl Excitation {
+    /// The unbalance phases φ_L, φ_R that `seed` draws: the first two draws of its stream,
+    /// whatever the noise settings ([`Self::new`] starts the same way).
+    pub fn phases_of(seed: u64) -> [f64; 2] {
+        Self::draw_phases(&mut ChaCha8Rng::seed_from_u64(seed))
+    }
+
+    fn draw_phases(rng: &mut ChaCha8Rng) -> [f64; 2] {
+        let tau_2pi = std::f64::consts::TAU;
+        [rng.random::<f64>() * tau_2pi, rng.random::<f64>() * tau_2pi]
+    }
+
     /// Draws the phases and the initial (stationary) noise from `seed`.
     pub fn new(seed: u64, sigma: f64, tau: f64, h: f64) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let tau_2pi = std::f64::consts::TAU;
-        let phases = [rng.random::<f64>() * tau_2pi, rng.random::<f64>() * tau_2pi];
+        let phases = Self::draw_phases(&mut rng);
         let decay = (-h / tau).exp();
         let mut ex = Self {
             rng,
@@ -115,5 +125,8 @@ mod tests {
         assert_eq!(a.phases, b.phases);
         assert_eq!(a.noise, b.noise);
         assert_ne!(a.phases, c.phases);
+        // The phases do not depend on the noise settings.
+        assert_eq!(Excitation::phases_of(3), a.phases);
+        assert_eq!(Excitation::new(3, 0.0, 1.0, 1e-3).phases, a.phases);
     }
 }
