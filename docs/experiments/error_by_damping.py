@@ -2,7 +2,8 @@
 
 Reads `firmware-sim fleet --json FLEET.json --work-dir DIR` outputs (each vehicle's c_s is in
 DIR/vehicle_SEED.toml) and prints, for the vehicles with c >= 0.1 mm sorted by c_s and cut
-into thirds: the c_s range, MAE, mean error and 90 % interval coverage.
+into thirds, and for all of them: the c_s range, MAE, mean error, median absolute error and 90 %
+interval coverage.
 
 Usage: python3 docs/experiments/error_by_damping.py fleet6400.json fleet6400 [JSON DIR ...]
 """
@@ -31,11 +32,13 @@ def main(args):
     rows.sort()
     n = len(rows)
     print(f"{n} vehicles with c >= 0.1 mm")
-    for k in range(3):
-        part = rows[k * n // 3:(k + 1) * n // 3]
+    parts = [rows[k * n // 3:(k + 1) * n // 3] for k in range(3)] + [rows]
+    for k, part in enumerate(parts):
         err = [m - c for _, c, m, _ in part]
-        print(f"c_s {part[0][0]:.1f}-{part[-1][0]:.1f}: n {len(part)}, "
+        label = "all" if k == 3 else f"c_s {part[0][0]:.1f}-{part[-1][0]:.1f}"
+        print(f"{label}: n {len(part)}, "
               f"MAE {sum(map(abs, err)) / len(err):.4f}, mean error {sum(err) / len(err):+.4f}, "
+              f"median |error| {sorted(map(abs, err))[len(err) // 2]:.4f}, "
               f"coverage {sum(r[3] for r in part)}/{len(part)}")
 
 
