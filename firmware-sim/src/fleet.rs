@@ -60,6 +60,13 @@ pub struct FleetArgs {
     /// Signal mapping of the reference bus.
     #[arg(long, default_value = "config/mappings/shimmy_reference.toml")]
     pub mapping: PathBuf,
+    /// The bus's DBC, in place of the built-in reference bus (dbc/shimmy_reference.dbc): the
+    /// simulated ECUs pack their frames with it and the estimator decodes them with it. A
+    /// variant of the reference DBC with another scale factor on SAS_Angle gives a steering
+    /// angle sensor with another step (build the table for it with `shimmy calibrate
+    /// --sensor-step-deg`).
+    #[arg(long, value_name = "FILE")]
+    pub dbc: Option<PathBuf>,
     /// Observer config (default: built-in defaults = config/observer.toml).
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -300,10 +307,15 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
         let phases = shimmy::model::excitation::Excitation::phases_of(seed);
         plant.set_unbalance_phases(phases);
     }
+    let dbc_text = match &args.dbc {
+        Some(p) => std::fs::read_to_string(p)
+            .with_context(|| format!("cannot read DBC {}", p.display()))?,
+        None => crate::bus::REFERENCE_DBC.to_string(),
+    };
     let mut sim = FirmwareSim::new(
         &sc,
         plant,
-        crate::bus::REFERENCE_DBC,
+        &dbc_text,
         RunInfo {
             scenario_file: Some(sc_path.display().to_string()),
             vehicle_file: Some(vfile.display().to_string()),
@@ -351,7 +363,7 @@ fn one_vehicle(
     let c_mm = eval.clearance_true_mm;
     let (report, _) = estimate_files(
         &args.mapping,
-        None,
+        args.dbc.as_deref(),
         Some(table.clone()),
         cfg.clone(),
         std::slice::from_ref(&log),
@@ -754,6 +766,56 @@ mod tests {
         assert!((1..50).all(|r| replicate_seed(4242, r) > 1 << 20));
         let e = vehicle_log(0, &args(&["--reuse"], &db), &db).unwrap_err();
         assert!(e.to_string().contains("not 0"), "{e}");
+        std::fs::remove_dir_all(&base).unwrap();
+    }
+
+    /// `--dbc` puts another bus on the wire: with SAS_Angle in 0.01 deg steps the simulated
+    /// sensor has that step, and the shipped table (built for 0.1 deg) refuses its events,
+    /// counted and named, instead of comparing them with predictions for another sensor.
+    #[test]
+    fn a_bus_with_another_steering_sensor_is_not_scored_against_the_wrong_table() {
+        let reference_dbc = crate::bus::REFERENCE_DBC;
+        let fine = reference_dbc.replace(
+            "SG_ SAS_Angle : 0|16@1- (0.1,0) [-3276.8|3276.7]",
+            "SG_ SAS_Angle : 0|16@1- (0.01,0) [-327.68|327.67]",
+        );
+        assert_ne!(fine, reference_dbc);
+        let base = std::env::temp_dir().join(format!("fleet-dbc-{}", std::process::id()));
+        std::fs::create_dir_all(&base).unwrap();
+        let dbc = base.join("fine.dbc");
+        std::fs::write(&dbc, fine).unwrap();
+        let (base, [(da, la, _), (db, lb, _)]) =
+            drawn_and("dbc", &["--dbc", dbc.to_str().unwrap()]);
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let table = ResponseTable::load(&root.join("config/vehicle/default_table.json")).unwrap();
+        let estimate = |log: &Path, dbc: Option<&Path>| {
+            estimate_files(
+                &root.join("config/mappings/shimmy_reference.toml"),
+                dbc,
+                Some(table.clone()),
+                ObserverConfig::default(),
+                std::slice::from_ref(&log.to_path_buf()),
+            )
+            .unwrap()
+            .0
+        };
+        let reference = estimate(&la, None);
+        assert!(reference.events_used > 0, "{:?}", reference.verdict);
+        assert_eq!(reference.events_sensor_mismatch, 0);
+        let other = estimate(&lb, Some(&dbc));
+        assert!(!other.events.is_empty());
+        assert_eq!(other.events_used, 0);
+        assert_eq!(other.events_sensor_mismatch, other.events.len() as u64);
+        assert!(other.events.iter().all(|e| e.unused_reason
+            == Some(shimmy::events::Unused::SensorMismatch)
+            && (e.quant_step_deg - 0.01).abs() < 1e-6));
+        assert!(
+            other.verdict.contains("--sensor-step-deg"),
+            "{}",
+            other.verdict
+        );
+        assert_eq!(other.clearance_mm, None);
+        drop((da, db));
         std::fs::remove_dir_all(&base).unwrap();
     }
 

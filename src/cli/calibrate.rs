@@ -111,6 +111,21 @@ pub struct Args {
     #[arg(long)]
     pub threads: Option<usize>,
 
+    /// The vehicle's steering angle sensor: sample rate (Hz). The table predicts what this
+    /// sensor reports (MODEL.md §8, src/observer/sensor.rs) and `shimmy estimate` does not use
+    /// events measured at another rate.
+    #[arg(long, default_value_t = SensorModel::default().rate_hz, value_name = "HZ")]
+    pub sensor_rate_hz: f64,
+
+    /// The steering angle sensor's quantisation step (deg): the signal's scale factor in the
+    /// DBC (0.1 on the reference bus). Events with another step are not used either.
+    #[arg(long, default_value_t = SensorModel::default().step_deg, value_name = "DEG")]
+    pub sensor_step_deg: f64,
+
+    /// White noise of the steering angle sensor before quantisation (deg RMS).
+    #[arg(long, default_value_t = SensorModel::default().noise_deg, value_name = "DEG")]
+    pub sensor_noise_deg: f64,
+
     /// No model runs: read this table (built by an earlier `shimmy calibrate` with per-vehicle
     /// means) and re-fit its cell means with the additive vehicle model (see --per-vehicle).
     #[arg(long, value_name = "TABLE")]
@@ -354,6 +369,8 @@ pub struct Grid {
     /// Drawn vehicles whose cells the table keeps for method "mixture" (see
     /// [`keep_mixture_vehicles`]).
     pub mixture_vehicles: u32,
+    /// The steering angle sensor the table's events are measured through.
+    pub sensor: SensorModel,
 }
 
 impl Grid {
@@ -406,6 +423,13 @@ struct EventsFile {
 /// Everything that decides a build's events: the grid, its sampling, the nuisance prior and
 /// the detector settings (not how the events are fitted afterwards).
 fn grid_fingerprint(grid: &Grid, cfg: &ObserverConfig) -> anyhow::Result<String> {
+    // The sensor is named only when it is not the reference bus's, so that events files written
+    // before the sensor could be chosen still match.
+    let sensor = if grid.sensor == SensorModel::default() {
+        String::new()
+    } else {
+        format!("; sensor {:?}", grid.sensor)
+    };
     Ok(format!(
         "clearance_mm {:?}, speed_kmh {:?}, decel_g {:?}, vehicles {}, seeds {}, shape {:?}, \
          seed_base {}, ranges {:?}; events {}",
@@ -418,7 +442,7 @@ fn grid_fingerprint(grid: &Grid, cfg: &ObserverConfig) -> anyhow::Result<String>
         grid.seed_base,
         grid.ranges,
         serde_json::to_string(&cfg.events)?
-    ))
+    ) + &sensor)
 }
 
 /// The nuisance vehicles of a build.
@@ -458,7 +482,7 @@ pub fn simulate_table_events(
     if grid.vehicles == 0 || grid.seeds == 0 {
         anyhow::bail!("--vehicles and --seeds must be at least 1");
     }
-    let sensor = SensorModel::default();
+    let sensor = grid.sensor;
     let vehicles = drawn_vehicles(vehicle, grid);
     let jobs = jobs(grid);
     let results: Vec<anyhow::Result<SimulatedEvent>> =
@@ -578,7 +602,7 @@ pub fn assemble_table(
     grid: &Grid,
     events: &[TableEvent],
 ) -> anyhow::Result<ResponseTable> {
-    let sensor = SensorModel::default();
+    let sensor = grid.sensor;
     let ranges = grid.ranges;
     let vehicles = drawn_vehicles(vehicle, grid);
     let (nm, nv, nd, ns) = (
@@ -774,18 +798,54 @@ fn emulate_into(
     t.validate()
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
-    let vehicle = super::estimate::load_vehicle(args.vehicle.as_deref())?;
-    let cfg = match &args.config {
-        Some(p) => ObserverConfig::load(p)?,
-        None => ObserverConfig::default(),
-    };
+/// The build's grid from the command line (checked).
+fn grid_from(args: &Args) -> anyhow::Result<Grid> {
     let [lo, hi] = args.clearance_range[..] else {
         anyhow::bail!("--clearance-range takes LOW,HIGH");
     };
     if !(lo > 0.0 && hi > lo) {
         anyhow::bail!("--clearance-range must satisfy 0 < LOW < HIGH");
     }
+    let grid = Grid {
+        clearance_mm: log_grid(lo, hi, args.clearances),
+        speed_kmh: args.speeds.clone(),
+        decel_g: args.decels.clone(),
+        vehicles: args.vehicles,
+        seeds: args.seeds,
+        shape: if args.shape == "single" {
+            EventShape::Single
+        } else {
+            EventShape::DRIVE
+        },
+        seed_base: args.seed_base,
+        additive: !args.per_vehicle,
+        emulate: args.emulate,
+        ranges: if args.exact_vehicle {
+            NuisanceRanges::NONE
+        } else {
+            NuisanceRanges::default()
+        },
+        terms: parse_terms(&args.terms).context("--terms")?,
+        mixture_vehicles: args.mixture_vehicles,
+        sensor: SensorModel {
+            rate_hz: args.sensor_rate_hz,
+            step_deg: args.sensor_step_deg,
+            noise_deg: args.sensor_noise_deg,
+            ..SensorModel::default()
+        },
+    };
+    grid.sensor
+        .validate()
+        .context("--sensor-rate-hz / --sensor-step-deg / --sensor-noise-deg")?;
+    Ok(grid)
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let vehicle = super::estimate::load_vehicle(args.vehicle.as_deref())?;
+    let cfg = match &args.config {
+        Some(p) => ObserverConfig::load(p)?,
+        None => ObserverConfig::default(),
+    };
     let threads = args.threads.unwrap_or_else(default_threads);
     let t0 = Instant::now();
     if let Some(src) = &args.refit {
@@ -809,28 +869,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
         return Ok(());
     }
-    let grid = Grid {
-        clearance_mm: log_grid(lo, hi, args.clearances),
-        speed_kmh: args.speeds.clone(),
-        decel_g: args.decels.clone(),
-        vehicles: args.vehicles,
-        seeds: args.seeds,
-        shape: if args.shape == "single" {
-            EventShape::Single
-        } else {
-            EventShape::DRIVE
-        },
-        seed_base: args.seed_base,
-        additive: !args.per_vehicle,
-        emulate: args.emulate,
-        ranges: if args.exact_vehicle {
-            NuisanceRanges::NONE
-        } else {
-            NuisanceRanges::default()
-        },
-        terms: parse_terms(&args.terms).context("--terms")?,
-        mixture_vehicles: args.mixture_vehicles,
-    };
+    let grid = grid_from(&args)?;
     let events = match &args.events_in {
         Some(path) => {
             let ev = load_events(path, &vehicle, &grid, &cfg)?;
@@ -933,6 +972,61 @@ mod tests {
             let e = parse(bad).err().unwrap().to_string();
             assert!(e.contains("cannot be used with"), "{bad:?}: {e}");
         }
+    }
+
+    /// `--sensor-*` chooses the sensor the table's events go through; the table records it, and
+    /// an events file names it only when it is not the reference bus's (files written before
+    /// the option existed still load).
+    #[test]
+    fn the_table_is_built_for_the_sensor_asked_for() {
+        use clap::Parser;
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            args: Args,
+        }
+        let grid = |extra: &[&str]| {
+            let mut a = vec![
+                "calibrate",
+                "--out",
+                "t.json",
+                "--clearances",
+                "2",
+                "--vehicles",
+                "1",
+                "--speeds",
+                "55",
+                "--decels",
+                "0.5",
+            ];
+            a.extend_from_slice(extra);
+            grid_from(&Cli::try_parse_from(a).unwrap().args)
+        };
+        let cfg = ObserverConfig::default();
+        let reference = grid(&[]).unwrap();
+        assert_eq!(reference.sensor, SensorModel::default());
+        assert!(!grid_fingerprint(&reference, &cfg)
+            .unwrap()
+            .contains("sensor"));
+        let fine = grid(&["--sensor-step-deg", "0.01", "--sensor-rate-hz", "200"]).unwrap();
+        assert_eq!((fine.sensor.step_deg, fine.sensor.rate_hz), (0.01, 200.0));
+        assert!(grid_fingerprint(&fine, &cfg)
+            .unwrap()
+            .contains("step_deg: 0.01"));
+        let e = grid(&["--sensor-rate-hz", "40"]).unwrap_err();
+        assert!(format!("{e:#}").contains("--sensor-rate-hz"), "{e:#}");
+        // The build puts the events through that sensor and says so in the table.
+        let vehicle = VehicleParams::default();
+        let t = build_table(&vehicle, &fine, &cfg, 2).unwrap();
+        assert_eq!(t.sensor, fine.sensor);
+        let ev = simulate_table_events(&vehicle, &fine, &cfg, 2).unwrap();
+        let ev_ref = simulate_table_events(&vehicle, &reference, &cfg, 2).unwrap();
+        // The same model runs seen through the other sensor: every event's statistics move.
+        assert_eq!(ev.len(), ev_ref.len());
+        assert!(ev
+            .iter()
+            .zip(&ev_ref)
+            .all(|(a, b)| a.seed == b.seed && a.raw.z != b.raw.z));
     }
 
     #[test]

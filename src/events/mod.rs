@@ -114,6 +114,10 @@ pub enum Unused {
     MissingData,
     /// The event outgrew the sample ring and was closed early.
     Truncated,
+    /// The steering angle came through a sensor (sample rate or quantisation step) other than
+    /// the one the response table predicts (`shimmy calibrate --sensor-*`): its features are
+    /// not comparable with the table's.
+    SensorMismatch,
 }
 
 /// Data quality of one event's steering signal.

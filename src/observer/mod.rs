@@ -128,6 +128,9 @@ pub struct Report {
     pub brake_applications_ignored: u64,
     /// Events not kept in `events` because the report's list was full.
     pub events_dropped: u64,
+    /// Events not used because their steering angle sensor is not the table's
+    /// ([`Unused::SensorMismatch`]).
+    pub events_sensor_mismatch: u64,
     pub p_clearance_above_threshold: Option<f64>,
     /// Method "linear", `phase = "either"`: posterior probability that the wheels' unbalance
     /// phase difference stayed the same over the events (src/observer/marginal.rs).
@@ -152,6 +155,9 @@ pub struct Observer {
     last_event: Option<EventOut>,
     clearance_raised: Option<(f64, f64)>,
     shimmy_raised: Option<f64>,
+    /// Events whose sensor did not match the table's, and the last one's (rate Hz, step deg).
+    sensor_mismatch: u64,
+    last_mismatch: (f64, f64),
 }
 
 impl Observer {
@@ -171,6 +177,8 @@ impl Observer {
             last_event: None,
             clearance_raised: None,
             shimmy_raised: None,
+            sensor_mismatch: 0,
+            last_mismatch: (0.0, 0.0),
             cfg,
         })
     }
@@ -233,6 +241,15 @@ impl Observer {
         if rec.used && feats.is_none() {
             reason = Some(Unused::MissingData);
             used = false;
+        }
+        if let (true, Some(t)) = (used, self.table.as_ref()) {
+            let q = &rec.quality;
+            if !t.sensor.matches(q.sample_hz, q.quant_step_deg) {
+                reason = Some(Unused::SensorMismatch);
+                used = false;
+                self.sensor_mismatch += 1;
+                self.last_mismatch = (q.sample_hz, q.quant_step_deg);
+            }
         }
         let amp = feats.as_ref().map(|f| self.amplitude_deg(f));
         if let (true, Some(f), Some(a)) = (used, feats.as_ref(), amp) {
@@ -353,6 +370,18 @@ impl Observer {
                 None,
                 if self.table.is_none() {
                     "no response table: clearance not estimated".to_string()
+                } else if let (true, Some(t)) = (self.sensor_mismatch > 0, self.table.as_ref()) {
+                    format!(
+                        "no usable braking events: {} came through a steering angle sensor \
+                         other than the response table's (measured {:.1} Hz, {} deg steps; \
+                         table {} Hz, {} deg): rebuild the table with `shimmy calibrate \
+                         --sensor-rate-hz --sensor-step-deg`",
+                        self.sensor_mismatch,
+                        self.last_mismatch.0,
+                        self.last_mismatch.1,
+                        t.sensor.rate_hz,
+                        t.sensor.step_deg
+                    )
                 } else {
                     "no usable braking events: clearance not estimated".to_string()
                 },
@@ -387,6 +416,7 @@ impl Observer {
             events_used: self.events.iter().filter(|e| e.used).count() as u32,
             brake_applications_ignored: self.detector.ignored,
             events_dropped: self.events_dropped,
+            events_sensor_mismatch: self.sensor_mismatch,
             p_clearance_above_threshold: summary.map(|s| s.1),
             p_wheel_phase_fixed: self
                 .estimator

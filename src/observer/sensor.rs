@@ -11,7 +11,8 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
-/// Sensor parameters (`[sensor]` of config/observer.toml).
+/// Sensor parameters: recorded in the response table (`sensor`), chosen with `shimmy calibrate
+/// --sensor-rate-hz / --sensor-step-deg / --sensor-noise-deg`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SensorModel {
@@ -39,6 +40,43 @@ impl Default for SensorModel {
 }
 
 impl SensorModel {
+    /// Checks that the sensor can be simulated and its events detected (the detector needs
+    /// more than 50 Hz for the 25 Hz band edge).
+    pub fn validate(&self) -> anyhow::Result<()> {
+        let ok = |x: f64, lo: f64, hi: f64| x.is_finite() && x >= lo && x <= hi;
+        if !ok(self.rate_hz, 50.0, 10_000.0) || self.rate_hz == 50.0 {
+            anyhow::bail!(
+                "sensor rate {} Hz: must be above 50 and at most 10000",
+                self.rate_hz
+            );
+        }
+        if !ok(self.step_deg, 0.0, 10.0) {
+            anyhow::bail!(
+                "sensor step {} deg: must be 0-10 (0 = not quantised)",
+                self.step_deg
+            );
+        }
+        if !ok(self.noise_deg, 0.0, 10.0) || !ok(self.drift_rms_deg, 0.0, 90.0) {
+            anyhow::bail!(
+                "sensor noise {} / drift {} deg: must be 0-10 / 0-90",
+                self.noise_deg,
+                self.drift_rms_deg
+            );
+        }
+        if !ok(self.drift_tau_s, 0.0, 1e3) {
+            anyhow::bail!("sensor drift_tau_s {}: must be 0-1000", self.drift_tau_s);
+        }
+        Ok(())
+    }
+
+    /// Whether an event measured at `fs_hz` with quantisation step `step_deg` (both as the
+    /// detector measured them; step 0 when no step was seen) came through a sensor like this
+    /// one: the rate within 5 %, the step within 5 % (a step the signal never crossed, 0, is
+    /// accepted).
+    pub fn matches(&self, fs_hz: f64, step_deg: f64) -> bool {
+        let close = |a: f64, b: f64| (a - b).abs() <= 0.05 * b.abs();
+        close(fs_hz, self.rate_hz) && (step_deg == 0.0 || close(step_deg, self.step_deg))
+    }
     /// Sample `x_rad` (uniform at `fs_in_hz`, starting at t = 0) into `out` as `(t_ns, rad)`.
     /// The sampling phase and the zero offset are drawn from `rng`.
     pub fn sample_into(
@@ -96,6 +134,41 @@ impl SensorModel {
             };
             out.push(((t * 1e9).round() as i64, q.to_radians()));
             t += period;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_event_matches_the_sensor_it_came_through_and_no_other() {
+        let s = SensorModel::default();
+        assert!(s.matches(100.0, 0.1));
+        assert!(s.matches(99.0, 0.1000001));
+        // A still wheel shows no step at all; that says nothing against the sensor.
+        assert!(s.matches(100.0, 0.0));
+        assert!(!s.matches(50.0, 0.1));
+        assert!(!s.matches(100.0, 0.01));
+        assert!(!s.matches(100.0, 0.2));
+        assert!(s.validate().is_ok());
+        for bad in [
+            SensorModel { rate_hz: 50.0, ..s },
+            SensorModel {
+                rate_hz: f64::NAN,
+                ..s
+            },
+            SensorModel {
+                step_deg: -0.1,
+                ..s
+            },
+            SensorModel {
+                noise_deg: f64::INFINITY,
+                ..s
+            },
+        ] {
+            assert!(bad.validate().is_err(), "{bad:?}");
         }
     }
 }
