@@ -72,11 +72,17 @@ impl SensorModel {
     /// Whether an event measured at `fs_hz` with quantisation step `step_deg` (both as the
     /// detector measured them; step 0 when no step was seen) came through a sensor like this
     /// one: the rate within 5 %, the step within 5 % (a step the signal never crossed, 0, is
-    /// accepted).
+    /// accepted; an unquantised sensor, step 0, accepts steps under 0.001°).
     pub fn matches(&self, fs_hz: f64, step_deg: f64) -> bool {
         let close = |a: f64, b: f64| (a - b).abs() <= 0.05 * b.abs();
-        close(fs_hz, self.rate_hz) && (step_deg == 0.0 || close(step_deg, self.step_deg))
+        let step_ok = if self.step_deg == 0.0 {
+            step_deg < 1e-3
+        } else {
+            step_deg == 0.0 || close(step_deg, self.step_deg)
+        };
+        close(fs_hz, self.rate_hz) && step_ok
     }
+
     /// Sample `x_rad` (uniform at `fs_in_hz`, starting at t = 0) into `out` as `(t_ns, rad)`.
     /// The sampling phase and the zero offset are drawn from `rng`.
     pub fn sample_into(
@@ -152,6 +158,8 @@ mod tests {
         assert!(!s.matches(50.0, 0.1));
         assert!(!s.matches(100.0, 0.01));
         assert!(!s.matches(100.0, 0.2));
+        let float = SensorModel { step_deg: 0.0, ..s };
+        assert!(float.matches(100.0, 1e-6) && !float.matches(100.0, 0.1));
         assert!(s.validate().is_ok());
         for bad in [
             SensorModel { rate_hz: 50.0, ..s },
