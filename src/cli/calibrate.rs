@@ -1017,9 +1017,9 @@ mod tests {
         assert!(format!("{e:#}").contains("--sensor-rate-hz"), "{e:#}");
         // The build puts the events through that sensor and says so in the table.
         let vehicle = VehicleParams::default();
-        let t = build_table(&vehicle, &fine, &cfg, 2).unwrap();
-        assert_eq!(t.sensor, fine.sensor);
         let ev = simulate_table_events(&vehicle, &fine, &cfg, 2).unwrap();
+        let t = assemble_table(&vehicle, &fine, &ev).unwrap();
+        assert_eq!(t.sensor, fine.sensor);
         let ev_ref = simulate_table_events(&vehicle, &reference, &cfg, 2).unwrap();
         // The same model runs seen through the other sensor: every event's statistics move.
         assert_eq!(ev.len(), ev_ref.len());

@@ -44,7 +44,7 @@ impl SensorModel {
     /// more than 50 Hz for the 25 Hz band edge).
     pub fn validate(&self) -> anyhow::Result<()> {
         let ok = |x: f64, lo: f64, hi: f64| x.is_finite() && x >= lo && x <= hi;
-        if !ok(self.rate_hz, 50.0, 10_000.0) || self.rate_hz == 50.0 {
+        if !(self.rate_hz > 50.0 && self.rate_hz <= 10_000.0) {
             anyhow::bail!(
                 "sensor rate {} Hz: must be above 50 and at most 10000",
                 self.rate_hz
