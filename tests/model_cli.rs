@@ -88,6 +88,7 @@ fn csv_has_named_columns_at_1_khz() {
         "penetration_l_m",
         "tire_fy_r_n",
         "delta_sw_deg",
+        "column_torque_nm",
     ] {
         assert!(header.contains(&col), "missing {col}");
     }

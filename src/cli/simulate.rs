@@ -45,7 +45,8 @@ pub struct Args {
     #[arg(long, value_name = "FILE")]
     pub vehicle: Option<PathBuf>,
     /// Write the 1 kHz time history to this CSV file: time, all coordinates and rates, speed,
-    /// demand, contact forces L/R (x, y), penetrations, tire forces and delta_sw_deg.
+    /// demand, contact forces L/R (x, y), penetrations, tire forces, delta_sw_deg and the column
+    /// torque column_torque_nm (MODEL.md §15; 0 unless the vehicle's [column] is enabled).
     #[arg(long, value_name = "FILE.csv")]
     pub out: Option<PathBuf>,
     /// Print the MODEL.md §11 features as one JSON object on stdout.
@@ -184,7 +185,7 @@ theta1_rate_rad_s,theta2_rate_rad_s,theta3_rate_rad_s,x_rate_mps,theta4_rate_rad
 alpha_l,alpha_r,speed_mps,decel_demand_mps2,\
 contact_fx_l_n,contact_fy_l_n,contact_fx_r_n,contact_fy_r_n,penetration_l_m,penetration_r_m,\
 tire_fx_l_n,tire_fy_l_n,tire_mz_l_nm,tire_fz_l_n,tire_fx_r_n,tire_fy_r_n,tire_mz_r_nm,tire_fz_r_n,\
-delta_sw_deg";
+delta_sw_deg,column_torque_nm";
 
 fn write_csv(path: &std::path::Path, trace: &Trace) -> anyhow::Result<()> {
     let mut w = std::io::BufWriter::new(std::fs::File::create(path)?);
@@ -221,6 +222,7 @@ fn write_csv(path: &std::path::Path, trace: &Trace) -> anyhow::Result<()> {
             o.tire_mz_nm[1],
             o.tire_fz_n[1],
             o.delta_sw_rad.to_degrees(),
+            o.column_torque_nm,
         ];
         for (i, v) in row.iter().enumerate() {
             if i > 0 {
