@@ -29,7 +29,7 @@ use shimmy::analysis::sweep::{default_threads, par_map};
 use shimmy::cli::estimate::estimate_files;
 use shimmy::model::VehicleParams;
 use shimmy::observer::simulate::{perturb, NuisanceRanges};
-use shimmy::observer::table::ResponseTable;
+use shimmy::observer::table::{vehicle_hash, ResponseTable};
 use shimmy::observer::{ObserverConfig, Report};
 
 /// Validate the clearance observer on a simulated fleet.
@@ -47,9 +47,15 @@ use shimmy::observer::{ObserverConfig, Report};
 #[derive(clap::Parser, Debug)]
 #[command(name = "firmware-sim fleet", verbatim_doc_comment)]
 pub struct FleetArgs {
-    /// Response table from `shimmy calibrate` (built for the nominal vehicle, MODEL.md §9).
+    /// Response table from `shimmy calibrate`, built for the fleet's nominal vehicle
+    /// (`--vehicle`, or MODEL.md §9).
     #[arg(long, value_name = "FILE")]
     pub table: PathBuf,
+    /// The nominal vehicle the fleet's vehicles are drawn around (TOML, MODEL.md §9 keys;
+    /// default: MODEL.md §9), e.g. one with the steering column of §15 enabled. The table must
+    /// be built for the same file (`shimmy calibrate --vehicle FILE`).
+    #[arg(long, value_name = "FILE")]
+    pub vehicle: Option<PathBuf>,
     #[arg(long, default_value_t = 40)]
     pub vehicles: usize,
     #[arg(long, default_value_t = 30)]
@@ -139,10 +145,27 @@ pub struct EvalTruth {
     /// `--replicate` of the run that wrote the log.
     #[serde(default)]
     pub replicate: u64,
+    /// Hash of the nominal vehicle (`--vehicle`) of the run that wrote the log.
+    #[serde(default = "default_vehicle_hash")]
+    pub nominal_vehicle_hash: String,
 }
 
 fn phase_none() -> String {
     "none".into()
+}
+
+fn default_vehicle_hash() -> String {
+    vehicle_hash(&VehicleParams::default()).unwrap_or_default()
+}
+
+/// The fleet's nominal vehicle: `--vehicle`, or MODEL.md §9.
+pub fn nominal_vehicle(args: &FleetArgs) -> anyhow::Result<VehicleParams> {
+    match &args.vehicle {
+        Some(p) => {
+            VehicleParams::from_toml_file(p).with_context(|| format!("--vehicle {}", p.display()))
+        }
+        None => Ok(VehicleParams::default()),
+    }
 }
 
 /// One vehicle's outcome.
@@ -210,16 +233,18 @@ pub struct VehiclePlan {
     pub events: Vec<(f64, f64)>,
 }
 
-/// The plan of the vehicle with `seed` (deterministic).
+/// The plan of the vehicle with `seed` around MODEL.md §9's vehicle (deterministic).
 pub fn vehicle_plan(seed: u64, n_events: usize) -> VehiclePlan {
+    vehicle_plan_around(&VehicleParams::default(), seed, n_events)
+}
+
+/// The plan of the vehicle with `seed` around `nominal` (deterministic): the same draws as
+/// [`vehicle_plan`], applied to another vehicle.
+pub fn vehicle_plan_around(nominal: &VehicleParams, seed: u64, n_events: usize) -> VehiclePlan {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     rng.set_stream(7);
     let c_mm = (0.03f64.ln() + rng.random::<f64>() * (0.4f64.ln() - 0.03f64.ln())).exp();
-    let p = perturb(
-        &VehicleParams::default(),
-        &NuisanceRanges::default(),
-        &mut rng,
-    );
+    let p = perturb(nominal, &NuisanceRanges::default(), &mut rng);
     let noise = p.excitation.noise_std_nm * rng.random_range(0.7..1.4);
     let events: Vec<(f64, f64)> = (0..n_events)
         .map(|_| {
@@ -241,7 +266,9 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
     let seed = args.seed_base + k as u64;
     let log = dir.join(format!("fleet_{seed}.log"));
     let eval_path = log.with_extension("eval.json");
-    let plan = vehicle_plan(seed, args.events);
+    let nominal = nominal_vehicle(args)?;
+    let nominal_hash = vehicle_hash(&nominal)?;
+    let plan = vehicle_plan_around(&nominal, seed, args.events);
     let c_mm = args.clearance_mm.unwrap_or(plan.clearance_mm);
     if args.reuse && log.exists() && eval_path.exists() {
         let text = std::fs::read_to_string(&eval_path)?;
@@ -264,6 +291,12 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
                 eval_path.display(),
                 e.phase_change,
                 args.phase_change
+            );
+        }
+        if e.nominal_vehicle_hash != nominal_hash {
+            anyhow::bail!(
+                "{} was written for another nominal vehicle (--vehicle)",
+                eval_path.display()
             );
         }
         if e.replicate != args.replicate {
@@ -338,6 +371,7 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
         clearance_true_mm: c_mm,
         phase_change: args.phase_change.clone(),
         replicate: args.replicate,
+        nominal_vehicle_hash: nominal_hash,
         sw_amplitudes_55_deg: truth
             .events
             .iter()
@@ -518,11 +552,13 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
         }
     }
     let table = ResponseTable::load(&args.table)?;
+    let nominal = nominal_vehicle(&args)?;
     table
-        .check_vehicle(&shimmy::observer::table::vehicle_hash(
-            &VehicleParams::default(),
-        )?)
-        .context("the fleet's nominal vehicle is MODEL.md §9")?;
+        .check_vehicle(&vehicle_hash(&nominal)?)
+        .with_context(|| match &args.vehicle {
+            Some(p) => format!("the fleet's nominal vehicle is {}", p.display()),
+            None => "the fleet's nominal vehicle is MODEL.md §9 (--vehicle)".into(),
+        })?;
     let cfg = match &args.config {
         Some(p) => ObserverConfig::load(p)?,
         None => ObserverConfig::default(),
@@ -726,6 +762,48 @@ mod tests {
         assert!(e.to_string().contains("not --clearance-mm 0.3"), "{e}");
         let e = vehicle_log(0, &args(&["--reuse"], &db), &db).unwrap_err();
         assert!(e.to_string().contains("(a --clearance-mm twin?)"), "{e}");
+        std::fs::remove_dir_all(&base).unwrap();
+    }
+
+    /// `--vehicle` draws the same nuisances around another nominal vehicle (here one with the
+    /// MODEL.md §15 column), writes that vehicle's file, and --reuse tells the two apart.
+    #[test]
+    fn a_fleet_around_another_vehicle_keeps_the_draws_and_the_vehicle() {
+        let base = std::env::temp_dir().join(format!("fleet-nominal-{}", std::process::id()));
+        std::fs::create_dir_all(&base).unwrap();
+        let mut col = VehicleParams::default();
+        col.column.enabled = true;
+        let vfile = base.join("col.toml");
+        std::fs::write(&vfile, toml::to_string(&col).unwrap()).unwrap();
+        let a = vehicle_plan(4242, 3);
+        let b = vehicle_plan_around(&col, 4242, 3);
+        assert_eq!((a.clearance_mm, &a.events), (b.clearance_mm, &b.events));
+        assert_eq!(
+            a.params.steering.kingpin_damping_nms_per_rad,
+            b.params.steering.kingpin_damping_nms_per_rad
+        );
+        assert!(b.params.column.enabled && !a.params.column.enabled);
+
+        let d = base.join("run");
+        std::fs::create_dir_all(&d).unwrap();
+        let opts = ["--vehicle", vfile.to_str().unwrap()];
+        let (_, e) = vehicle_log(0, &args(&opts, &d), &d).unwrap();
+        assert_eq!(e.nominal_vehicle_hash, vehicle_hash(&col).unwrap());
+        let written = VehicleParams::from_toml_file(d.join("vehicle_4242.toml")).unwrap();
+        assert!(written.column.enabled);
+        // The same log is not reused for the default vehicle, but is for its own.
+        let e = vehicle_log(0, &args(&["--reuse"], &d), &d).unwrap_err();
+        assert!(e.to_string().contains("another nominal vehicle"), "{e}");
+        let mut again = opts.to_vec();
+        again.push("--reuse");
+        vehicle_log(0, &args(&again, &d), &d).unwrap();
+        // A missing file is a clear error.
+        let bad = ["--vehicle", "/nonexistent/vehicle.toml"];
+        let e = vehicle_log(0, &args(&bad, &d), &d).unwrap_err();
+        assert!(
+            format!("{e:#}").contains("--vehicle /nonexistent/vehicle.toml"),
+            "{e:#}"
+        );
         std::fs::remove_dir_all(&base).unwrap();
     }
 
