@@ -158,13 +158,21 @@ fn default_vehicle_hash() -> String {
     vehicle_hash(&VehicleParams::default()).unwrap_or_default()
 }
 
-/// The fleet's nominal vehicle: `--vehicle`, or MODEL.md §9.
-pub fn nominal_vehicle(args: &FleetArgs) -> anyhow::Result<VehicleParams> {
-    match &args.vehicle {
-        Some(p) => {
-            VehicleParams::from_toml_file(p).with_context(|| format!("--vehicle {}", p.display()))
-        }
-        None => Ok(VehicleParams::default()),
+/// The fleet's nominal vehicle (`--vehicle`, or MODEL.md §9) and its hash, read once per run.
+pub struct Nominal {
+    pub params: VehicleParams,
+    pub hash: String,
+}
+
+impl Nominal {
+    pub fn load(args: &FleetArgs) -> anyhow::Result<Nominal> {
+        let params = match &args.vehicle {
+            Some(p) => VehicleParams::from_toml_file(p)
+                .with_context(|| format!("--vehicle {}", p.display()))?,
+            None => VehicleParams::default(),
+        };
+        let hash = vehicle_hash(&params)?;
+        Ok(Nominal { params, hash })
     }
 }
 
@@ -262,13 +270,16 @@ pub fn vehicle_plan_around(nominal: &VehicleParams, seed: u64, n_events: usize) 
 }
 
 /// Simulates vehicle `k` into `dir` (log, truth, `.eval.json`), or finds it there (--reuse).
-fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBuf, EvalTruth)> {
+fn vehicle_log(
+    k: usize,
+    args: &FleetArgs,
+    nominal: &Nominal,
+    dir: &Path,
+) -> anyhow::Result<(PathBuf, EvalTruth)> {
     let seed = args.seed_base + k as u64;
     let log = dir.join(format!("fleet_{seed}.log"));
     let eval_path = log.with_extension("eval.json");
-    let nominal = nominal_vehicle(args)?;
-    let nominal_hash = vehicle_hash(&nominal)?;
-    let plan = vehicle_plan_around(&nominal, seed, args.events);
+    let plan = vehicle_plan_around(&nominal.params, seed, args.events);
     let c_mm = args.clearance_mm.unwrap_or(plan.clearance_mm);
     if args.reuse && log.exists() && eval_path.exists() {
         let text = std::fs::read_to_string(&eval_path)?;
@@ -293,7 +304,7 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
                 args.phase_change
             );
         }
-        if e.nominal_vehicle_hash != nominal_hash {
+        if e.nominal_vehicle_hash != nominal.hash {
             anyhow::bail!(
                 "{} was written for another nominal vehicle (--vehicle)",
                 eval_path.display()
@@ -371,7 +382,7 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
         clearance_true_mm: c_mm,
         phase_change: args.phase_change.clone(),
         replicate: args.replicate,
-        nominal_vehicle_hash: nominal_hash,
+        nominal_vehicle_hash: nominal.hash.clone(),
         sw_amplitudes_55_deg: truth
             .events
             .iter()
@@ -387,13 +398,14 @@ fn vehicle_log(k: usize, args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBu
 fn one_vehicle(
     k: usize,
     args: &FleetArgs,
+    nominal: &Nominal,
     dir: &Path,
     table: &ResponseTable,
     cfg: &ObserverConfig,
 ) -> anyhow::Result<VehicleResult> {
     let t0 = Instant::now();
     let seed = args.seed_base + k as u64;
-    let (log, eval) = vehicle_log(k, args, dir)?;
+    let (log, eval) = vehicle_log(k, args, nominal, dir)?;
     let c_mm = eval.clearance_true_mm;
     let (report, _) = estimate_files(
         &args.mapping,
@@ -552,9 +564,9 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
         }
     }
     let table = ResponseTable::load(&args.table)?;
-    let nominal = nominal_vehicle(&args)?;
+    let nominal = Nominal::load(&args)?;
     table
-        .check_vehicle(&vehicle_hash(&nominal)?)
+        .check_vehicle(&nominal.hash)
         .with_context(|| match &args.vehicle {
             Some(p) => format!("the fleet's nominal vehicle is {}", p.display()),
             None => "the fleet's nominal vehicle is MODEL.md §9 (--vehicle)".into(),
@@ -580,7 +592,7 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
     let ks: Vec<usize> = (0..args.vehicles).collect();
     if args.logs_only {
         let done = par_map(&ks, threads, |&k| {
-            let r = vehicle_log(k, &args, &dir);
+            let r = vehicle_log(k, &args, &nominal, &dir);
             if r.is_ok() {
                 eprintln!("vehicle {k:>3}: log written");
             }
@@ -600,7 +612,7 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let results = par_map(&ks, threads, |&k| {
-        let r = one_vehicle(k, &args, &dir, &table, &cfg);
+        let r = one_vehicle(k, &args, &nominal, &dir, &table, &cfg);
         if let Ok(v) = &r {
             eprintln!(
                 "vehicle {:>3}: c = {:.3} mm -> {} [{}] alerts: clearance {} shimmy {} ({} events used, {:.0} s)",
@@ -724,6 +736,11 @@ mod tests {
         FleetArgs::parse_from(a)
     }
 
+    /// Vehicle 0's log as `run` writes it: the nominal vehicle read from `args`, then the log.
+    fn log0(args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBuf, EvalTruth)> {
+        vehicle_log(0, args, &Nominal::load(args)?, dir)
+    }
+
     /// Vehicle 0 of seed 4242 as drawn (in `base/a`) and with `extra` options (in `base/b`):
     /// (base, [(dir, log, truth); 2]).
     fn drawn_and(tag: &str, extra: &[&str]) -> (PathBuf, [(PathBuf, PathBuf, EvalTruth); 2]) {
@@ -731,7 +748,7 @@ mod tests {
         let run = |sub: &str, opts: &[&str]| {
             let d = base.join(sub);
             std::fs::create_dir_all(&d).unwrap();
-            let (log, e) = vehicle_log(0, &args(opts, &d), &d).unwrap();
+            let (log, e) = log0(&args(opts, &d), &d).unwrap();
             (d, log, e)
         };
         let a = run("a", &[]);
@@ -758,9 +775,9 @@ mod tests {
         }
         assert_eq!(strip(&sa), strip(&sb));
         // --reuse refuses a log made for another clearance.
-        let e = vehicle_log(0, &args(&["--clearance-mm", "0.3", "--reuse"], &db), &db).unwrap_err();
+        let e = log0(&args(&["--clearance-mm", "0.3", "--reuse"], &db), &db).unwrap_err();
         assert!(e.to_string().contains("not --clearance-mm 0.3"), "{e}");
-        let e = vehicle_log(0, &args(&["--reuse"], &db), &db).unwrap_err();
+        let e = log0(&args(&["--reuse"], &db), &db).unwrap_err();
         assert!(e.to_string().contains("(a --clearance-mm twin?)"), "{e}");
         std::fs::remove_dir_all(&base).unwrap();
     }
@@ -787,19 +804,19 @@ mod tests {
         let d = base.join("run");
         std::fs::create_dir_all(&d).unwrap();
         let opts = ["--vehicle", vfile.to_str().unwrap()];
-        let (_, e) = vehicle_log(0, &args(&opts, &d), &d).unwrap();
+        let (_, e) = log0(&args(&opts, &d), &d).unwrap();
         assert_eq!(e.nominal_vehicle_hash, vehicle_hash(&col).unwrap());
         let written = VehicleParams::from_toml_file(d.join("vehicle_4242.toml")).unwrap();
         assert!(written.column.enabled);
         // The same log is not reused for the default vehicle, but is for its own.
-        let e = vehicle_log(0, &args(&["--reuse"], &d), &d).unwrap_err();
+        let e = log0(&args(&["--reuse"], &d), &d).unwrap_err();
         assert!(e.to_string().contains("another nominal vehicle"), "{e}");
         let mut again = opts.to_vec();
         again.push("--reuse");
-        vehicle_log(0, &args(&again, &d), &d).unwrap();
+        log0(&args(&again, &d), &d).unwrap();
         // A missing file is a clear error.
         let bad = ["--vehicle", "/nonexistent/vehicle.toml"];
-        let e = vehicle_log(0, &args(&bad, &d), &d).unwrap_err();
+        let e = log0(&args(&bad, &d), &d).unwrap_err();
         assert!(
             format!("{e:#}").contains("--vehicle /nonexistent/vehicle.toml"),
             "{e:#}"
@@ -842,7 +859,7 @@ mod tests {
         assert_eq!(phase(&da), phase(&db));
         // A replicate seed is none of the first million seeds, and --reuse tells replicates apart.
         assert!((1..50).all(|r| replicate_seed(4242, r) > 1 << 20));
-        let e = vehicle_log(0, &args(&["--reuse"], &db), &db).unwrap_err();
+        let e = log0(&args(&["--reuse"], &db), &db).unwrap_err();
         assert!(e.to_string().contains("not 0"), "{e}");
         std::fs::remove_dir_all(&base).unwrap();
     }
