@@ -16,7 +16,7 @@ fn bench(c: &mut Criterion) {
     let dir = tempfile::tempdir().unwrap();
     let cfg = dir.path().join("shimmyd.toml");
     let mapping =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/mappings/toyota_rav4.toml");
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/vehicles/toyota_rav4/mapping.toml");
     std::fs::write(
         &cfg,
         format!(

@@ -1,7 +1,7 @@
 //! Cost of the clearance observer per braking event (issue 5: target under 20 ms on one core
 //! once the response table is built): the detector over one event's samples, the feature
 //! extraction (band-pass, peak, RMS, noise correction) and the posterior update, on the
-//! shipped table (config/vehicle/default_table.json) with the default method "linear", and the
+//! shipped table (config/vehicles/shimmy_reference/table.json) with the default method "linear", and the
 //! method "mixture"'s update on a synthetic table of 12 clearances x 40 nuisance vehicles x 6
 //! speeds x 2 decelerations.
 //!
@@ -49,7 +49,7 @@ fn table() -> ResponseTable {
 }
 
 fn bench(c: &mut Criterion) {
-    let shipped = ResponseTable::load(std::path::Path::new("config/vehicle/default_table.json"))
+    let shipped = ResponseTable::load(std::path::Path::new("config/vehicles/shimmy_reference/table.json"))
         .expect("the shipped table (run from the package root)");
     let t = &shipped;
     // One stop from 55 km/h at 0.5 g after 2 s of cruise, 1.5 s standing.

@@ -23,6 +23,7 @@ pub mod events;
 pub mod journal;
 pub mod model;
 pub mod observer;
+pub mod profile;
 pub mod report;
 pub mod shared_data;
 pub mod signals;

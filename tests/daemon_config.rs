@@ -92,8 +92,8 @@ fn broken_configs_name_the_key_and_the_problem() {
             &["alerts.shimmy_clear_deg", "flap"],
         ),
         (
-            "mapping = \"mappings/shimmy_reference.toml\"",
-            "mapping = \"mappings/nope.toml\"",
+            "mapping = \"vehicles/shimmy_reference/mapping.toml\"",
+            "mapping = \"vehicles/nope.toml\"",
             &["input.mapping", "nope.toml", "does not exist"],
         ),
         (
@@ -279,8 +279,8 @@ fn shimmyd_refuses_a_broken_config_at_start() {
     let text = default_text()
         .replace("../dbc/", &format!("{}/dbc/", workspace().display()))
         .replace(
-            "mappings/",
-            &format!("{}/config/mappings/", workspace().display()),
+            "vehicles/",
+            &format!("{}/config/vehicles/", workspace().display()),
         )
         .replace(
             "vehicle/default",

@@ -31,7 +31,7 @@ fn write_config(dir: &Path, vehicle: &str, alerts: &str) -> PathBuf {
         "[input]\ndbc = {:?}\nmapping = {:?}\n[vehicle]\n{vehicle}\n[alerts]\n{alerts}\n\
          [outputs]\njournal_dir = \"journal\"\nstate_dir = \"state\"\n",
         workspace().join("dbc/shimmy_reference.dbc"),
-        workspace().join("config/mappings/shimmy_reference.toml"),
+        workspace().join("config/vehicles/shimmy_reference/mapping.toml"),
     );
     std::fs::write(&p, text).unwrap();
     p

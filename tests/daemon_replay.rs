@@ -45,7 +45,7 @@ fn rav4_log_raises_nothing_reports_counters_and_state_resumes() {
     let cfg = write_config(
         dir.path(),
         &dbc,
-        &workspace().join("config/mappings/toyota_rav4.toml"),
+        &workspace().join("config/vehicles/toyota_rav4/mapping.toml"),
     );
     let run = || {
         let out = Command::new(env!("CARGO_BIN_EXE_shimmyd"))
@@ -102,7 +102,7 @@ fn sigterm_mid_replay_stops_cleanly() {
     let cfg = write_config(
         dir.path(),
         &dbc,
-        &workspace().join("config/mappings/toyota_rav4.toml"),
+        &workspace().join("config/vehicles/toyota_rav4/mapping.toml"),
     );
     // Recorded timing: the log lasts about a minute, so the daemon is still running when told
     // to stop.
@@ -150,7 +150,7 @@ fn corrupt_state_is_moved_aside_and_reported() {
     let cfg = write_config(
         dir.path(),
         &dbc,
-        &workspace().join("config/mappings/toyota_rav4.toml"),
+        &workspace().join("config/vehicles/toyota_rav4/mapping.toml"),
     );
     std::fs::create_dir_all(dir.path().join("state")).unwrap();
     std::fs::write(
@@ -194,7 +194,7 @@ fn sighup_reloads_alerts_and_keeps_running_config_when_broken() {
     let cfg = write_config(
         dir.path(),
         &dbc,
-        &workspace().join("config/mappings/toyota_rav4.toml"),
+        &workspace().join("config/vehicles/toyota_rav4/mapping.toml"),
     );
     let good = std::fs::read_to_string(&cfg).unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_shimmyd"))
@@ -262,7 +262,7 @@ fn recorded_timing_replay_keeps_the_logs_pace_at_bus_rate() {
     let cfg = write_config(
         dir.path(),
         &workspace().join("dbc/shimmy_reference.dbc"),
-        &workspace().join("config/mappings/shimmy_reference.toml"),
+        &workspace().join("config/vehicles/shimmy_reference/mapping.toml"),
     );
     let t0 = Instant::now();
     let out = Command::new(env!("CARGO_BIN_EXE_shimmyd"))

@@ -18,8 +18,8 @@ fn config(dir: &Path) -> PathBuf {
         "[input]\ndbc = {:?}\nmapping = {:?}\n[vehicle]\ntable = {:?}\n\
          [outputs]\njournal_dir = \"journal\"\nstate_dir = \"state\"\n",
         workspace().join("dbc/shimmy_reference.dbc"),
-        workspace().join("config/mappings/shimmy_reference.toml"),
-        workspace().join("config/vehicle/default_table.json"),
+        workspace().join("config/vehicles/shimmy_reference/mapping.toml"),
+        workspace().join("config/vehicles/shimmy_reference/table.json"),
     );
     std::fs::write(&p, text).unwrap();
     p

@@ -16,7 +16,7 @@ fn real_rav4_log_reports_no_events_and_no_alerts() {
         return;
     };
     let (report, stats) = estimate_files(
-        &root().join("config/mappings/toyota_rav4.toml"),
+        &root().join("config/vehicles/toyota_rav4/mapping.toml"),
         Some(&dbc),
         None,
         ObserverConfig::default(),
@@ -46,7 +46,7 @@ fn real_rav4_log_reports_no_events_and_no_alerts() {
 #[test]
 fn a_missing_log_or_mapping_is_a_clear_error() {
     let err = estimate_files(
-        &root().join("config/mappings/shimmy_reference.toml"),
+        &root().join("config/vehicles/shimmy_reference/mapping.toml"),
         Some(&root().join("dbc/shimmy_reference.dbc")),
         None,
         ObserverConfig::default(),

@@ -22,7 +22,7 @@ use counting_alloc::counted;
 
 fn shipped_table() -> ResponseTable {
     ResponseTable::load(
-        &Path::new(env!("CARGO_MANIFEST_DIR")).join("config/vehicle/default_table.json"),
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("config/vehicles/shimmy_reference/table.json"),
     )
     .expect("the shipped table")
 }

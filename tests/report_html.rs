@@ -78,7 +78,7 @@ fn demo_config(dir: &Path) -> std::path::PathBuf {
         format!(
             "[input]\ndbc = {:?}\nmapping = {:?}\n[alerts]\nshimmy_deg = 0.05\nshimmy_clear_deg = 0.02\nshimmy_confirm = 1\nshimmy_speed_min_kmh = 30.0\nshimmy_speed_max_kmh = 80.0\n[outputs]\njournal_dir = \"journal\"\nstate_dir = \"state\"\n",
             ws.join("dbc/shimmy_reference.dbc"),
-            ws.join("config/mappings/shimmy_reference.toml")
+            ws.join("config/vehicles/shimmy_reference/mapping.toml")
         ),
     )
     .unwrap();

@@ -2,7 +2,7 @@
 //! writes a candump log and its ground-truth sidecar from a scenario in `config/scenarios/`,
 //! the `shimmyd` executable replays it (`--replay LOG --fast --state-dir DIR`, the repository's
 //! reference DBC and mapping, the default vehicle and its response table
-//! `config/vehicle/default_table.json`, the documented default alert rules), and the journal
+//! `config/vehicles/shimmy_reference/table.json`, the documented default alert rules), and the journal
 //! it writes is compared with the truth:
 //!
 //! * clearance alert: raised for every scenario whose true clearance is >= 0.12 mm, never for
@@ -253,7 +253,7 @@ fn rav4_log_raises_nothing_and_reports_counters() {
         } else if l.starts_with("mapping = ") {
             *l = format!(
                 "mapping = {:?}",
-                e2e_common::workspace().join("config/mappings/toyota_rav4.toml")
+                e2e_common::workspace().join("config/vehicles/toyota_rav4/mapping.toml")
             );
         }
     }

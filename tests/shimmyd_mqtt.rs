@@ -200,7 +200,7 @@ fn config(dir: &Path, port: u16, drain_s: f64) -> PathBuf {
     let abs = |rel: &str| demo.join(rel).canonicalize().unwrap().display().to_string();
     let text = text
         .replace("\"../../dbc/", &format!("\"{}/", abs("../../dbc")))
-        .replace("\"../mappings/", &format!("\"{}/", abs("../mappings")))
+        .replace("\"../vehicles/", &format!("\"{}/", abs("../vehicles")))
         .replace("\"../vehicle/", &format!("\"{}/", abs("../vehicle")))
         .replace(
             "\"../../target/demo/journal\"",

@@ -31,7 +31,7 @@ fn rav4_log_prints_every_mapped_frame_with_validity() {
     ) else {
         return;
     };
-    let mapping = repo("config/mappings/toyota_rav4.toml");
+    let mapping = repo("config/vehicles/toyota_rav4/mapping.toml");
     let (ok, out, err) = shimmy(&[
         "decode",
         "--dbc",
@@ -134,7 +134,7 @@ fn faults_are_shown_per_frame_and_counted_in_the_summary() {
         "--dbc",
         repo("dbc/shimmy_reference.dbc").to_str().unwrap(),
         "--mapping",
-        repo("config/mappings/shimmy_reference.toml")
+        repo("config/vehicles/shimmy_reference/mapping.toml")
             .to_str()
             .unwrap(),
         "--format",
@@ -174,7 +174,7 @@ fn a_mapping_that_does_not_fit_the_dbc_is_a_clear_error() {
     let dir = std::env::temp_dir().join(format!("shimmy-signals-bad-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let bad = dir.join("bad.toml");
-    let text = std::fs::read_to_string(repo("config/mappings/shimmy_reference.toml"))
+    let text = std::fs::read_to_string(repo("config/vehicles/shimmy_reference/mapping.toml"))
         .unwrap()
         .replace("signal = \"VEH_Speed\"", "signal = \"VEH_Spede\"");
     std::fs::write(&bad, text).unwrap();
@@ -199,7 +199,7 @@ fn a_mapping_that_does_not_fit_the_dbc_is_a_clear_error() {
         "--dbc",
         dbc.to_str().unwrap(),
         "--mapping",
-        repo("config/mappings/shimmy_reference.toml")
+        repo("config/vehicles/shimmy_reference/mapping.toml")
             .to_str()
             .unwrap(),
         "--raw",

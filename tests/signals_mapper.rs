@@ -26,7 +26,7 @@ fn every_shipped_mapping_resolves_against_its_dbc() {
             "dbc/opendbc/honda_civic_touring_2016_can_generated.dbc",
             4,
         ),
-        ("hyundai", "dbc/opendbc/hyundai_can_generated.dbc", 4),
+        ("hyundai_kia", "dbc/opendbc/hyundai_can_generated.dbc", 4),
     ];
     for (name, dbc, n_ids) in cases {
         let Some(p) = require_file(dbc) else { return };

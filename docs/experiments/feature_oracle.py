@@ -20,7 +20,7 @@ a product estimator (it needs the vehicle's true nuisances).
 
 Usage (from the repository root):
   docs/experiments/feature_oracle_runs.sh ORC DIR [DIR ...]      # the model runs (see there)
-  ORACLE_TABLE=config/vehicle/default_table.json \
+  ORACLE_TABLE=config/vehicles/shimmy_reference/table.json \
       python3 docs/experiments/feature_oracle.py ORC ORC/plan.json [FLEET.json DIR ...]
 FLEET.json / DIR pairs are the product's `firmware-sim fleet --json` results on the same logs,
 printed beside the oracle. Environment: ORACLE_TABLE adds the rows of the shipped law (the

@@ -36,16 +36,16 @@ EOF
 # the vehicles' own drives
 python3 -c 'import json,sys; [print(d, s) for d, s in json.load(open(sys.argv[1]))["sel"]]' \
     "$orc/plan.json" | while read -r d s; do
-    target/release/shimmy estimate --mapping config/mappings/shimmy_reference.toml \
+    target/release/shimmy estimate --mapping config/vehicles/shimmy_reference/mapping.toml \
         --config config/observer.toml "$d/fleet_$s.log" > "$orc/obs/ev_$s.json"
 done
 one() {  # SEED C R DIR
     local w="$ORC/$4"
     mkdir -p "$w"
-    target/release/firmware-sim fleet --table config/vehicle/default_table.json \
+    target/release/firmware-sim fleet --table config/vehicles/shimmy_reference/table.json \
         --config config/observer.toml --vehicles 1 --events 30 --seed-base "$1" \
         --clearance-mm "$2" --replicate "$3" --work-dir "$w" --logs-only --threads 1 > /dev/null
-    target/release/shimmy estimate --mapping config/mappings/shimmy_reference.toml \
+    target/release/shimmy estimate --mapping config/vehicles/shimmy_reference/mapping.toml \
         --config config/observer.toml "$w/fleet_$1.log" > "$w/ev_$1.json"
     rm -f "$w/fleet_$1.log"
 }

@@ -8,7 +8,7 @@ linear interpolation at the middle of a step misses |second difference| / 8. Bes
 table's own per-vehicle misfit (sqrt of between[c][0][0]) and event scatter over 30 events
 (sqrt of within[c][0][0] / 30), for ln RMS.
 
-Usage (numpy): python3 docs/experiments/law_interpolation.py config/vehicle/default_table.json
+Usage (numpy): python3 docs/experiments/law_interpolation.py config/vehicles/shimmy_reference/table.json
 """
 import json
 import sys

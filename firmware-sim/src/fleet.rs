@@ -64,7 +64,7 @@ pub struct FleetArgs {
     #[arg(long, default_value_t = 5000)]
     pub seed_base: u64,
     /// Signal mapping of the reference bus.
-    #[arg(long, default_value = "config/mappings/shimmy_reference.toml")]
+    #[arg(long, default_value = "config/vehicles/shimmy_reference/mapping.toml")]
     pub mapping: PathBuf,
     /// The bus's DBC, in place of the built-in reference bus (dbc/shimmy_reference.dbc): the
     /// simulated ECUs pack their frames with it and the estimator decodes them with it. A
@@ -882,10 +882,10 @@ mod tests {
         let (base, [(da, la, _), (db, lb, _)]) =
             drawn_and("dbc", &["--dbc", dbc.to_str().unwrap()]);
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-        let table = ResponseTable::load(&root.join("config/vehicle/default_table.json")).unwrap();
+        let table = ResponseTable::load(&root.join("config/vehicles/shimmy_reference/table.json")).unwrap();
         let estimate = |log: &Path, dbc: Option<&Path>| {
             estimate_files(
-                &root.join("config/mappings/shimmy_reference.toml"),
+                &root.join("config/vehicles/shimmy_reference/mapping.toml"),
                 dbc,
                 Some(table.clone()),
                 ObserverConfig::default(),

@@ -1,7 +1,7 @@
 //! End to end on a real kernel CAN bus: the `firmware-sim` binary sends a scenario on `vcan0`
 //! (or `SHIMMY_VCAN_IF`) at N× real time while this test reads the bus live through
 //! `shimmy::source::socketcan::LiveSource` and decodes it the way the monitor does
-//! (`shimmy::signals::Mapper` with `config/mappings/shimmy_reference.toml`). Checked:
+//! (`shimmy::signals::Mapper` with `config/vehicles/shimmy_reference/mapping.toml`). Checked:
 //!
 //! * per message, frames sent (the binary's ground truth) = received, printed as
 //!   `VCAN-COUNTS test=firmware_sim ...` lines (collected by `tests/vcan_vm.rs`);
@@ -35,7 +35,7 @@ use shimmy::source::socketcan::{FilterId, LiveSource};
 use shimmy::source::CanSource;
 use shimmy::wire::Frame;
 
-const MAPPING: &str = include_str!("../../config/mappings/shimmy_reference.toml");
+const MAPPING: &str = include_str!("../../config/vehicles/shimmy_reference/mapping.toml");
 
 /// About 5 s of driving: a stop from 40 km/h at 0.5 g, pull away, a slowdown from 15 km/h. The
 /// step is 2e-4 s (the model allows up to 5e-4) because the single TCG vCPU of the VM runs the

@@ -655,6 +655,7 @@ pub fn assemble_table(
         amp_map: amp,
         provenance: provenance(grid, &ranges),
         linear: None,
+        prior: ranges,
     };
     let raw: Vec<RawEvent> = events.iter().map(|e| e.raw).collect();
     let table_coords: Vec<_> = vehicles
@@ -945,6 +946,7 @@ mod tests {
             amp_map: vec![],
             provenance: String::new(),
             linear: None,
+            prior: NuisanceRanges::default(),
         }
     }
 

@@ -46,7 +46,7 @@ pub struct Args {
     #[arg(long, value_name = "FILE")]
     pub dbc: PathBuf,
 
-    /// Signal mapping (TOML, see config/mappings/) to print the monitor's quantities instead
+    /// Signal mapping (TOML, e.g. config/vehicles/*/mapping.toml) to print the monitor's quantities instead
     /// of raw signals: one record per frame of a mapped message, with steering-wheel angle
     /// (deg), speed (km/h), brake pressure (bar), brake pressed, longitudinal acceleration
     /// (m/s^2), each with its validity (valid, no_data, timed_out, not_mapped; a value is

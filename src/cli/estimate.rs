@@ -43,11 +43,11 @@ use crate::source::{CanSource, SourceStats};
 ///
 /// Example:
 ///   shimmy calibrate --out table.json
-///   shimmy estimate --mapping config/mappings/shimmy_reference.toml --table table.json drive.log
+///   shimmy estimate --mapping config/vehicles/shimmy_reference/mapping.toml --table table.json drive.log
 #[derive(clap::Args, Debug)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
-    /// Signal mapping (TOML, config/mappings/*.toml).
+    /// Signal mapping (TOML, config/vehicles/*/mapping.toml).
     #[arg(long, value_name = "FILE")]
     pub mapping: PathBuf,
 
@@ -85,7 +85,7 @@ pub enum Format {
     Text,
 }
 
-/// Finds the DBC a mapping names.
+/// Finds the DBC a mapping names (see [`crate::profile::resolve_dbc`] for where it looks).
 pub fn resolve_dbc(mapping_path: &Path, mapping: &MappingConfig) -> anyhow::Result<PathBuf> {
     let Some(name) = mapping.dbc.as_deref() else {
         bail!(
@@ -94,26 +94,12 @@ pub fn resolve_dbc(mapping_path: &Path, mapping: &MappingConfig) -> anyhow::Resu
         );
     };
     let dir = mapping_path.parent().unwrap_or(Path::new("."));
-    let mut tried = Vec::new();
-    for cand in [
-        dir.join(name),
-        dir.join("../../dbc").join(name),
-        PathBuf::from("dbc").join(name),
-        crate::shared_data::configured_dir()
-            .join("dbc/opendbc")
-            .join(name),
-        crate::shared_data::configured_dir().join("dbc").join(name),
-    ] {
-        if cand.is_file() {
-            return Ok(cand);
-        }
-        tried.push(cand.display().to_string());
-    }
-    bail!(
-        "DBC `{name}` named by {} not found (tried {}); pass --dbc FILE",
-        mapping_path.display(),
-        tried.join(", ")
-    )
+    crate::profile::resolve_dbc(dir, name).with_context(|| {
+        format!(
+            "the DBC named by mapping {}; pass --dbc FILE",
+            mapping_path.display()
+        )
+    })
 }
 
 /// Loads vehicle parameters (default: MODEL.md §9).

@@ -52,7 +52,7 @@ pub struct Input {
     pub fast: bool,
     /// The DBC describing the bus.
     pub dbc: PathBuf,
-    /// The signal mapping (config/mappings/*.toml).
+    /// The signal mapping (a profile's mapping.toml, config/vehicles/*/mapping.toml).
     pub mapping: PathBuf,
 }
 

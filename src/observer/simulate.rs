@@ -25,8 +25,10 @@ use crate::model::braking::driver::{CRUISE_TAU_S, CRUISE_TOL_MPS, JERK_MPS3, V_S
 use crate::model::rhs::ix;
 use crate::model::{Integrator, Scenario, Simulator, VehicleParams};
 
-/// Ranges of the nuisances drawn per simulated vehicle.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// Ranges of the nuisances drawn per simulated vehicle (the table's nuisance prior; recorded in
+/// the table as `prior`).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct NuisanceRanges {
     /// Relative ± spread on stiffnesses and dampings (0.1 = ±10 %).
     pub stiffness_damping_rel: f64,

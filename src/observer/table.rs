@@ -28,6 +28,7 @@ use anyhow::{bail, Context};
 use serde::{Deserialize, Serialize};
 
 use super::sensor::SensorModel;
+use super::simulate::NuisanceRanges;
 
 pub const FORMAT: &str = "shimmy response table v4";
 /// The format before the nuisance model took a list of terms: its `linear` (17 fixed
@@ -125,6 +126,11 @@ pub struct ResponseTable {
     /// estimator's method `"linear"`; absent in tables of fewer drawn vehicles than it needs.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub linear: Option<super::linear::LinearModel>,
+    /// The nuisance prior the table's vehicles were drawn from and its nuisance model's
+    /// coordinates are scaled to ([`super::emulate::coords`]); tables written before it was
+    /// recorded were built with the default.
+    #[serde(default)]
+    pub prior: NuisanceRanges,
 }
 
 /// FNV-1a 64 of `bytes`, as 16 hex digits. Used for the vehicle-parameter version stamp (not a

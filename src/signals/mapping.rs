@@ -1,6 +1,6 @@
 //! The mapping file: which DBC message and signal carries each quantity the monitor needs, how to
 //! compose it, in what unit it arrives, and how its messages are protected (timeout, counter,
-//! checksum). TOML, one file per vehicle under `config/mappings/`.
+//! checksum). TOML, one file per vehicle profile (`config/vehicles/<name>/mapping.toml`, [`crate::profile`]).
 //!
 //! This module is the file format and its checks only: names are resolved against a DBC, and
 //! frames are interpreted, by [`crate::signals::Mapper`]. Units are converted to SI here, once, by

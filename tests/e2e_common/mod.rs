@@ -150,9 +150,9 @@ pub fn write_config(dir: &Path, input: &str) -> PathBuf {
          [outputs]\njournal_dir = \"journal\"\nstate_dir = \"state\"\n\
          [log]\ncounters_interval_s = 1\n",
         ws.join("dbc/shimmy_reference.dbc"),
-        ws.join("config/mappings/shimmy_reference.toml"),
+        ws.join("config/vehicles/shimmy_reference/mapping.toml"),
         ws.join("config/vehicle/default.toml"),
-        ws.join("config/vehicle/default_table.json"),
+        ws.join("config/vehicles/shimmy_reference/table.json"),
     );
     std::fs::write(&p, text).unwrap();
     p

@@ -13,7 +13,7 @@ pub fn repo(rel: &str) -> PathBuf {
 }
 
 pub fn mapping(name: &str) -> MappingConfig {
-    MappingConfig::from_toml_file(repo(&format!("config/mappings/{name}.toml"))).unwrap()
+    MappingConfig::from_toml_file(repo(&format!("config/vehicles/{name}/mapping.toml"))).unwrap()
 }
 
 pub fn reference_db() -> Database {

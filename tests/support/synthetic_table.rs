@@ -29,6 +29,7 @@ pub fn synthetic(
         amp_map: vec![[0.01, 0.03], [0.1, 0.25]],
         provenance: "synthetic".into(),
         linear: None,
+        prior: Default::default(),
     };
     t.validate().unwrap();
     t

@@ -1,0 +1,430 @@
+//! Vehicle profiles: the car as the unit a user deals with.
+//!
+//! A profile is one folder under `config/vehicles/<name>/` (the folder's name is the profile's
+//! name) holding everything the monitor needs to know about one car model's bus and chassis:
+//!
+//! | file | what it is |
+//! |---|---|
+//! | `profile.toml` | names the DBC, the mapping, the table and the bus description; the chassis (MODEL.md §9) and its nuisance prior; the sensors as this car's bus carries them |
+//! | `mapping.toml` | which DBC signals carry steering angle, speed, brake, acceleration ([`crate::signals::mapping`]) |
+//! | `bus.toml` | the car's bus as it is on the road: message periods, counters, checksums, sign conventions ([`bus`]); firmware-sim emulates it and [`identify`] recognises it |
+//! | `table.json` | the response table built for exactly this chassis and steering angle sensor (`shimmy calibrate --profile NAME`) |
+//!
+//! What this module is: the file format, the search path, and the checks that the parts fit
+//! together (the table's chassis hash and sensor against the profile's). What it is not: the
+//! decoding ([`crate::signals`]), the estimate ([`crate::observer`]) or the table build
+//! (`shimmy calibrate`).
+//!
+//! Where profiles are looked up, first match wins: the directories in `SHIMMY_PROFILES`
+//! (colon-separated), `./config/vehicles`, `/etc/shimmyd/vehicles`, and the `config/vehicles`
+//! of the source tree the binary was built from. A path to a profile folder or to its
+//! `profile.toml` is accepted wherever a name is.
+
+pub mod bus;
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use serde::{Deserialize, Serialize};
+
+use crate::model::VehicleParams;
+use crate::observer::sensor::SensorModel;
+use crate::observer::simulate::NuisanceRanges;
+use crate::observer::table::{vehicle_hash, ResponseTable};
+use crate::signals::mapping::MappingConfig;
+
+/// `profile.toml` as written.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProfileFile {
+    /// The car's name as a person says it ("Toyota RAV4 2017").
+    pub name: String,
+    /// Other names `--profile` accepts (e.g. "rav4").
+    #[serde(default)]
+    pub aliases: Vec<String>,
+    /// The DBC file: a path relative to the profile folder, or a file name looked up in the
+    /// DBC search path ([`resolve_dbc`]).
+    pub dbc: String,
+    /// The signal mapping, relative to the profile folder.
+    #[serde(default = "default_mapping")]
+    pub mapping: String,
+    /// The response table, relative to the profile folder. A profile without one still finds
+    /// braking events and the shimmy-amplitude alert, but estimates no clearance.
+    #[serde(default)]
+    pub table: Option<String>,
+    /// The bus description (firmware-sim and `shimmy identify`), relative to the folder.
+    #[serde(default)]
+    pub bus: Option<String>,
+    #[serde(default)]
+    pub chassis: ChassisSection,
+    #[serde(default)]
+    pub sensors: SensorsSection,
+}
+
+fn default_mapping() -> String {
+    "mapping.toml".into()
+}
+
+/// `[chassis]`: the shimmy model's parameters for this car and the prior the table puts
+/// around them.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChassisSection {
+    /// A vehicle parameter file (MODEL.md §9 keys), relative to the profile folder; absent:
+    /// MODEL.md §9's defaults.
+    #[serde(default)]
+    pub file: Option<String>,
+    /// The nuisance prior around those values that the table integrates out; absent: the
+    /// default (±10 % on k_s, c_s, k_t, k_g, c_g; unbalance ×0.5–2; road noise ×0.7–1.4).
+    #[serde(default)]
+    pub prior: Option<PriorSection>,
+}
+
+/// `[chassis.prior]` ([`NuisanceRanges`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PriorSection {
+    /// Relative ± spread of each steering stiffness and damping (0.1 = ±10 %).
+    pub stiffness_damping_rel: f64,
+    /// Unbalance factor range (log-uniform).
+    pub unbalance_factor: [f64; 2],
+    /// Road-noise factor range (uniform).
+    pub road_noise_factor: [f64; 2],
+}
+
+impl From<PriorSection> for NuisanceRanges {
+    fn from(p: PriorSection) -> NuisanceRanges {
+        NuisanceRanges {
+            stiffness_damping_rel: p.stiffness_damping_rel,
+            unbalance_factor: (p.unbalance_factor[0], p.unbalance_factor[1]),
+            road_noise_factor: (p.road_noise_factor[0], p.road_noise_factor[1]),
+        }
+    }
+}
+
+/// `[sensors]`: what this car's bus carries, as measured on it.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorsSection {
+    /// The steering angle sensor (rate, step, noise; [`SensorModel`]). Absent: the reference
+    /// bus's 100 Hz, 0.1° sensor.
+    #[serde(default)]
+    pub steer_angle: Option<SensorModel>,
+    /// The EPS torsion-bar torque, where the bus carries it (MODEL.md §15 T_c).
+    #[serde(default)]
+    pub steer_torque: Option<TorqueSensor>,
+}
+
+/// A steering torque signal on the bus (its step is the DBC signal's factor).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TorqueSensor {
+    pub message: String,
+    pub signal: String,
+    /// Sample rate (Hz) on the bus.
+    pub rate_hz: f64,
+    /// N·m per unit of the DBC's physical value, where known (VW: 0.01, the DBC counts
+    /// centi-N·m); absent where the car's scale is not public (the signal is then in counts).
+    #[serde(default)]
+    pub nm_per_unit: Option<f64>,
+}
+
+/// A profile resolved from its folder: every path checked, the mapping and chassis loaded.
+#[derive(Clone, Debug)]
+pub struct Profile {
+    /// The folder's name.
+    pub name: String,
+    pub dir: PathBuf,
+    pub file: ProfileFile,
+    pub dbc_path: PathBuf,
+    pub mapping_path: PathBuf,
+    pub mapping: MappingConfig,
+    pub vehicle: VehicleParams,
+    /// Where the chassis came from (a file, or "MODEL.md §9 defaults").
+    pub vehicle_source: String,
+    pub prior: NuisanceRanges,
+    pub sensor: SensorModel,
+    pub table_path: Option<PathBuf>,
+    pub bus_path: Option<PathBuf>,
+}
+
+/// The directories searched for profiles, in order (see the module docs).
+pub fn search_dirs() -> Vec<PathBuf> {
+    let mut dirs = Vec::new();
+    if let Some(v) = std::env::var_os("SHIMMY_PROFILES") {
+        dirs.extend(std::env::split_paths(&v).filter(|p| !p.as_os_str().is_empty()));
+    }
+    dirs.push(PathBuf::from("config/vehicles"));
+    dirs.push(PathBuf::from("/etc/shimmyd/vehicles"));
+    dirs.push(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/vehicles"));
+    dirs
+}
+
+/// Every profile folder found on the search path, by name (the first of each name wins), in
+/// name order.
+pub fn list() -> Vec<PathBuf> {
+    let mut found: std::collections::BTreeMap<String, PathBuf> = Default::default();
+    for dir in search_dirs() {
+        let Ok(rd) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        for e in rd.flatten() {
+            let p = e.path();
+            if p.join("profile.toml").is_file() {
+                if let Some(n) = p.file_name().and_then(|n| n.to_str()) {
+                    found.entry(n.to_string()).or_insert(p);
+                }
+            }
+        }
+    }
+    found.into_values().collect()
+}
+
+/// Loads every profile on the search path; a profile that fails to load is returned as the
+/// error with its folder named.
+pub fn load_all() -> Vec<anyhow::Result<Profile>> {
+    list().into_iter().map(|d| Profile::load_dir(&d)).collect()
+}
+
+/// Finds a profile folder by name, alias, folder path or `profile.toml` path.
+pub fn find(name: &str) -> anyhow::Result<PathBuf> {
+    let p = Path::new(name);
+    if p.file_name().is_some_and(|f| f == "profile.toml") && p.is_file() {
+        return Ok(p.parent().unwrap_or(Path::new(".")).to_path_buf());
+    }
+    if p.join("profile.toml").is_file() && (name.contains('/') || name.starts_with('.')) {
+        return Ok(p.to_path_buf());
+    }
+    for dir in search_dirs() {
+        let cand = dir.join(name);
+        if cand.join("profile.toml").is_file() {
+            return Ok(cand);
+        }
+    }
+    let mut names = Vec::new();
+    for d in list() {
+        if let Ok(f) = read_file(&d) {
+            if f.aliases.iter().any(|a| a.eq_ignore_ascii_case(name)) {
+                return Ok(d);
+            }
+        }
+        if let Some(n) = d.file_name().and_then(|n| n.to_str()) {
+            names.push(n.to_string());
+        }
+    }
+    bail!(
+        "no vehicle profile `{name}` (known: {}; searched {})",
+        if names.is_empty() {
+            "none".to_string()
+        } else {
+            names.join(", ")
+        },
+        search_dirs()
+            .iter()
+            .map(|d| d.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    )
+}
+
+fn read_file(dir: &Path) -> anyhow::Result<ProfileFile> {
+    let path = dir.join("profile.toml");
+    let text = std::fs::read_to_string(&path)
+        .with_context(|| format!("cannot read {}", path.display()))?;
+    toml::from_str(&text).with_context(|| format!("in {}", path.display()))
+}
+
+/// Finds a DBC named `name` (a path relative to `base`, or a bare file name): `base`, the
+/// repository's `dbc/`, `./dbc`, `SHIMMY_DBC_PATH` (colon-separated), the shared data's
+/// `dbc/opendbc` and `dbc`.
+pub fn resolve_dbc(base: &Path, name: &str) -> anyhow::Result<PathBuf> {
+    let mut cands = vec![
+        base.join(name),
+        base.join("../../../dbc").join(name),
+        PathBuf::from("dbc").join(name),
+        PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("dbc")
+            .join(name),
+    ];
+    if let Some(v) = std::env::var_os("SHIMMY_DBC_PATH") {
+        cands.extend(std::env::split_paths(&v).map(|d| d.join(name)));
+    }
+    let data = crate::shared_data::configured_dir();
+    cands.push(data.join("dbc/opendbc").join(name));
+    cands.push(data.join("dbc").join(name));
+    for c in &cands {
+        if c.is_file() {
+            return Ok(c.clone());
+        }
+    }
+    bail!(
+        "DBC `{name}` not found (tried {}); set SHIMMY_DBC_PATH to the folder that holds it",
+        cands
+            .iter()
+            .map(|c| c.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    )
+}
+
+impl Profile {
+    /// Loads the profile `name` (see [`find`]).
+    pub fn load(name: &str) -> anyhow::Result<Profile> {
+        let dir = find(name)?;
+        Profile::load_dir(&dir)
+    }
+
+    /// Loads the profile in folder `dir`.
+    pub fn load_dir(dir: &Path) -> anyhow::Result<Profile> {
+        let file = read_file(dir)?;
+        let name = dir
+            .canonicalize()
+            .unwrap_or_else(|_| dir.to_path_buf())
+            .file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or("profile")
+            .to_string();
+        let ctx = || format!("vehicle profile {}", dir.display());
+        let dbc_path = resolve_dbc(dir, &file.dbc).with_context(ctx)?;
+        let mapping_path = dir.join(&file.mapping);
+        let mapping = MappingConfig::from_toml_file(&mapping_path)
+            .with_context(|| format!("mapping {}", mapping_path.display()))
+            .with_context(ctx)?;
+        let (vehicle, vehicle_source) = match &file.chassis.file {
+            Some(f) => {
+                let p = dir.join(f);
+                let v = VehicleParams::from_toml_file(&p)
+                    .with_context(|| format!("chassis {}", p.display()))
+                    .with_context(ctx)?;
+                (v, p.display().to_string())
+            }
+            None => (VehicleParams::default(), "MODEL.md §9 defaults".into()),
+        };
+        let prior = file
+            .chassis
+            .prior
+            .map(NuisanceRanges::from)
+            .unwrap_or_default();
+        check_prior(&prior).with_context(ctx)?;
+        let sensor = file.sensors.steer_angle.unwrap_or_default();
+        sensor
+            .validate()
+            .context("sensors.steer_angle")
+            .with_context(ctx)?;
+        let opt = |f: &Option<String>| f.as_ref().map(|f| dir.join(f));
+        let table_path = opt(&file.table);
+        let bus_path = opt(&file.bus);
+        for (key, p) in [("bus", &bus_path)] {
+            if let Some(p) = p {
+                if !p.is_file() {
+                    bail!("{}: {key} file {} does not exist", ctx(), p.display());
+                }
+            }
+        }
+        Ok(Profile {
+            name,
+            dir: dir.to_path_buf(),
+            dbc_path,
+            mapping_path,
+            mapping,
+            vehicle,
+            vehicle_source,
+            prior,
+            sensor,
+            table_path,
+            bus_path,
+            file,
+        })
+    }
+
+    /// "toyota_rav4 (Toyota RAV4 2017)".
+    pub fn label(&self) -> String {
+        format!("{} ({})", self.name, self.file.name)
+    }
+
+    /// The hash a table built for this profile's chassis records.
+    pub fn chassis_hash(&self) -> anyhow::Result<String> {
+        vehicle_hash(&self.vehicle)
+    }
+
+    /// The profile's response table, checked against its chassis and steering angle sensor.
+    /// `Ok(None)` when the profile names no table.
+    pub fn load_table(&self) -> anyhow::Result<Option<ResponseTable>> {
+        let Some(path) = &self.table_path else {
+            return Ok(None);
+        };
+        if !path.is_file() {
+            bail!(
+                "profile {}: its table {} does not exist; build it with `shimmy calibrate \
+                 --profile {}`",
+                self.name,
+                path.display(),
+                self.name
+            );
+        }
+        let t = ResponseTable::load(path)?;
+        self.check_table(&t)
+            .with_context(|| format!("profile {}: table {}", self.name, path.display()))?;
+        Ok(Some(t))
+    }
+
+    /// Refuses a table built for another chassis or sensor than this profile's.
+    pub fn check_table(&self, t: &ResponseTable) -> anyhow::Result<()> {
+        t.check_vehicle(&self.chassis_hash()?)?;
+        if t.sensor != self.sensor {
+            bail!(
+                "built for a steering angle sensor of {} Hz, {} deg steps, {} deg noise, but the \
+                 profile's is {} Hz, {} deg, {} deg; rebuild it with `shimmy calibrate --profile {}`",
+                t.sensor.rate_hz,
+                t.sensor.step_deg,
+                t.sensor.noise_deg,
+                self.sensor.rate_hz,
+                self.sensor.step_deg,
+                self.sensor.noise_deg,
+                self.name
+            );
+        }
+        if t.prior != self.prior {
+            bail!(
+                "built with the nuisance prior {:?}, but the profile's is {:?}; rebuild it with \
+                 `shimmy calibrate --profile {}`",
+                t.prior,
+                self.prior,
+                self.name
+            );
+        }
+        Ok(())
+    }
+
+    /// The bus description, when the profile has one.
+    pub fn load_bus(&self) -> anyhow::Result<Option<bus::BusSpec>> {
+        match &self.bus_path {
+            Some(p) => Ok(Some(bus::BusSpec::load(p)?)),
+            None => Ok(None),
+        }
+    }
+}
+
+/// Rejects nuisance priors the table builder cannot draw from.
+pub fn check_prior(r: &NuisanceRanges) -> anyhow::Result<()> {
+    let ok = |lo: f64, hi: f64| lo.is_finite() && hi.is_finite() && lo > 0.0 && hi >= lo;
+    if !(r.stiffness_damping_rel.is_finite() && (0.0..0.9).contains(&r.stiffness_damping_rel)) {
+        bail!(
+            "chassis.prior.stiffness_damping_rel: must be 0 to 0.9 (got {})",
+            r.stiffness_damping_rel
+        );
+    }
+    if !ok(r.unbalance_factor.0, r.unbalance_factor.1) {
+        bail!(
+            "chassis.prior.unbalance_factor: must be [low, high] with 0 < low <= high (got {:?})",
+            r.unbalance_factor
+        );
+    }
+    if !ok(r.road_noise_factor.0, r.road_noise_factor.1) {
+        bail!(
+            "chassis.prior.road_noise_factor: must be [low, high] with 0 < low <= high (got {:?})",
+            r.road_noise_factor
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,63 @@
+//! The shipped vehicle profiles (config/vehicles): each loads, its mapping fits its DBC, and the
+//! lookup by name, alias and path finds it.
+
+use shimmy::dbc::Database;
+use shimmy::profile::{self, Profile};
+use shimmy::signals::Mapper;
+
+const SHIPPED: [&str; 5] = [
+    "shimmy_reference",
+    "toyota_rav4",
+    "vw_mqb",
+    "honda_civic",
+    "hyundai_kia",
+];
+
+fn repo(rel: &str) -> std::path::PathBuf {
+    std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(rel)
+}
+
+#[test]
+fn every_shipped_profile_loads_and_its_mapping_fits_its_dbc() {
+    // The opendbc DBCs live in the shared data; without it only the reference profile loads.
+    let have_data = shimmy::shared_data::require("the opendbc DBCs of the profiles").is_some();
+    for name in SHIPPED {
+        if !have_data && name != "shimmy_reference" {
+            continue;
+        }
+        let p = Profile::load_dir(&repo(&format!("config/vehicles/{name}")))
+            .unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        assert_eq!(p.name, name);
+        let (db, _) = Database::load(&p.dbc_path).unwrap();
+        Mapper::new(&db, &p.mapping).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        p.sensor.validate().unwrap();
+    }
+}
+
+#[test]
+fn a_profile_is_found_by_name_alias_and_path_and_an_unknown_name_lists_the_known_ones() {
+    let dir = profile::find("shimmy_reference").unwrap();
+    assert!(dir.join("profile.toml").is_file());
+    assert_eq!(
+        profile::find("reference").unwrap().canonicalize().unwrap(),
+        dir.canonicalize().unwrap()
+    );
+    let by_path = repo("config/vehicles/shimmy_reference/profile.toml");
+    assert!(profile::find(by_path.to_str().unwrap()).is_ok());
+    let e = profile::find("no_such_car").unwrap_err().to_string();
+    assert!(e.contains("no vehicle profile `no_such_car`"), "{e}");
+    assert!(e.contains("toyota_rav4") && e.contains("shimmy_reference"), "{e}");
+}
+
+#[test]
+fn the_reference_profile_table_fits_its_chassis_and_sensor_and_another_sensor_is_refused() {
+    let p = Profile::load("shimmy_reference").unwrap();
+    let t = p.load_table().unwrap().expect("the reference profile ships a table");
+    let mut other = p.clone();
+    other.sensor.rate_hz = 83.0;
+    let e = other.check_table(&t).unwrap_err().to_string();
+    assert!(
+        e.contains("83 Hz") && e.contains("shimmy calibrate --profile"),
+        "{e}"
+    );
+}
