@@ -15,8 +15,8 @@ fn bench(c: &mut Criterion) {
     };
     let dir = tempfile::tempdir().unwrap();
     let cfg = dir.path().join("shimmyd.toml");
-    let mapping =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/vehicles/toyota_rav4/mapping.toml");
+    let mapping = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("config/vehicles/toyota_rav4/mapping.toml");
     std::fs::write(
         &cfg,
         format!(

@@ -49,8 +49,10 @@ fn table() -> ResponseTable {
 }
 
 fn bench(c: &mut Criterion) {
-    let shipped = ResponseTable::load(std::path::Path::new("config/vehicles/shimmy_reference/table.json"))
-        .expect("the shipped table (run from the package root)");
+    let shipped = ResponseTable::load(std::path::Path::new(
+        "config/vehicles/shimmy_reference/table.json",
+    ))
+    .expect("the shipped table (run from the package root)");
     let t = &shipped;
     // One stop from 55 km/h at 0.5 g after 2 s of cruise, 1.5 s standing.
     let stream = braking_stream::drive(0.0, 2.0, 55.0, 0.5, 1.5);

@@ -46,13 +46,19 @@ fn a_profile_is_found_by_name_alias_and_path_and_an_unknown_name_lists_the_known
     assert!(profile::find(by_path.to_str().unwrap()).is_ok());
     let e = profile::find("no_such_car").unwrap_err().to_string();
     assert!(e.contains("no vehicle profile `no_such_car`"), "{e}");
-    assert!(e.contains("toyota_rav4") && e.contains("shimmy_reference"), "{e}");
+    assert!(
+        e.contains("toyota_rav4") && e.contains("shimmy_reference"),
+        "{e}"
+    );
 }
 
 #[test]
 fn the_reference_profile_table_fits_its_chassis_and_sensor_and_another_sensor_is_refused() {
     let p = Profile::load("shimmy_reference").unwrap();
-    let t = p.load_table().unwrap().expect("the reference profile ships a table");
+    let t = p
+        .load_table()
+        .unwrap()
+        .expect("the reference profile ships a table");
     let mut other = p.clone();
     other.sensor.rate_hz = 83.0;
     let e = other.check_table(&t).unwrap_err().to_string();

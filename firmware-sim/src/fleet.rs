@@ -882,7 +882,8 @@ mod tests {
         let (base, [(da, la, _), (db, lb, _)]) =
             drawn_and("dbc", &["--dbc", dbc.to_str().unwrap()]);
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-        let table = ResponseTable::load(&root.join("config/vehicles/shimmy_reference/table.json")).unwrap();
+        let table =
+            ResponseTable::load(&root.join("config/vehicles/shimmy_reference/table.json")).unwrap();
         let estimate = |log: &Path, dbc: Option<&Path>| {
             estimate_files(
                 &root.join("config/vehicles/shimmy_reference/mapping.toml"),

@@ -11,6 +11,7 @@ pub mod chaos;
 pub mod cwt;
 pub mod features;
 pub mod filter;
+pub mod sampling;
 pub mod spectrum;
 pub mod sweep;
 

@@ -447,7 +447,6 @@ impl Detector {
         let mut max_abs = 0.0f64;
         let mut qstep = f64::INFINITY;
         let mut max_gap = 0.0f64;
-        self.scratch.clear();
         for (k, &(t, a)) in win.iter().enumerate() {
             max_abs = max_abs.max(a.abs());
             if k > 0 {
@@ -456,16 +455,17 @@ impl Detector {
                 if d > 1e-9 {
                     qstep = qstep.min(d);
                 }
-                let dt = secs(t - tp);
-                max_gap = max_gap.max(dt);
-                self.scratch.push(dt);
+                max_gap = max_gap.max(secs(t - tp));
             }
         }
-        let med_dt = median_in_place(&mut self.scratch).unwrap_or(0.0);
-        let sample_hz = if med_dt > 0.0 { 1.0 / med_dt } else { 0.0 };
+        // The steering signal's period, robust to timestamp jitter; gaps longer than any
+        // jitter count as missing samples (crate::analysis::sampling).
+        let fit = crate::analysis::sampling::fit(win.iter().map(|x| x.0));
+        let period_s = fit.map_or(0.0, |f| f.period_ns * 1e-9);
+        let sample_hz = if period_s > 0.0 { 1.0 / period_s } else { 0.0 };
         let span_s = secs(tail_end - t_start_ns);
-        let expected = if med_dt > 0.0 {
-            (span_s / med_dt).round() as i64
+        let expected = if period_s > 0.0 {
+            (span_s / period_s).round() as i64
         } else {
             0
         };

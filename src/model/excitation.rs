@@ -58,6 +58,15 @@ impl Excitation {
         ex
     }
 
+    /// Draws the noise's innovations from `seed`'s stream from now on: a new realisation of the
+    /// road ahead. The current noise values, the step count and the unbalance phases stay, so
+    /// the noise does not jump.
+    pub fn reseed_noise(&mut self, seed: u64) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        rng.set_stream(7);
+        self.rng = rng;
+    }
+
     /// Advances the OU processes by one step h (exact discretisation).
     #[inline]
     pub fn advance(&mut self) {

@@ -439,6 +439,15 @@ impl Simulator {
         self.trig = Trig::exact(&self.model, &self.y);
     }
 
+    /// Draws the road noise from `seed` from now on (§7; [`Excitation::reseed_noise`]): the
+    /// same vehicle on another stretch of road. Used to branch one run into several
+    /// independent continuations.
+    pub fn reseed_noise(&mut self, seed: u64) {
+        self.commit_lookahead();
+        self.sync_noise();
+        self.exc.reseed_noise(seed);
+    }
+
     /// Sets the radial clearances of the left and right joints from now on (§4): unequal
     /// wear, or clearance growing with distance (firmware-sim's wear option). A joint whose
     /// clearance grows while the pin presses into the bushing simply sees a smaller

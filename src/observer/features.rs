@@ -22,8 +22,10 @@
 //!   on tight joints (busy before and during the brake) from a rattle on worn ones (quiet
 //!   before, busy during), which the braking amplitude alone cannot.
 //!
-//! Samples are first put on a uniform grid at the median rate (sample-and-hold over gaps; the
-//! event's quality record counts the gaps). Allocation: the extractor owns its buffers; it
+//! Samples are first put on a uniform grid at the rate they were sent at: consecutive samples
+//! one period apart whatever the logger's timestamp jitter, a gap spanning its periods
+//! (sample-and-hold over it; the event's quality record counts the gaps;
+//! [`crate::analysis::sampling`]). Allocation: the extractor owns its buffers; it
 //! allocates only when an event is longer than any before (bounded by the detector's ring), and
 //! the band-pass allocates once per event, never per frame.
 
@@ -132,30 +134,36 @@ impl Extractor {
                 samples.len()
             )));
         }
-        // Median interval → nominal rate.
-        let mut dts: heapless::Vec<i64, 64> = heapless::Vec::new();
-        for w in samples.windows(2).take(64) {
-            let _ = dts.push(w[1].0 - w[0].0);
-        }
-        dts.sort_unstable();
-        let dt_ns = dts[dts.len() / 2].max(1);
-        let fs_hz = (1e9 / dt_ns as f64 * 10.0).round() / 10.0;
-        // Uniform grid, sample-and-hold.
-        let t_first = samples[0].0;
-        let t_last = samples[samples.len() - 1].0;
-        let n = ((t_last - t_first) / dt_ns + 1) as usize;
+        // The period the samples were sent at, robust to the logger's jitter
+        // (crate::analysis::sampling), and a grid on which consecutive samples sit one period
+        // apart and a gap spans its periods (sample-and-hold over it).
+        let fit = crate::analysis::sampling::fit(samples.iter().map(|s| s.0))
+            .ok_or_else(|| AnalysisError::TooShort("steering samples all at one time".into()))?;
+        let fs_hz = (1e9 / fit.period_ns * 10.0).round() / 10.0;
+        let cap = 4 * samples.len() + 4096;
         self.grid.clear();
-        let mut j = 0;
-        for k in 0..n {
-            let t = t_first + k as i64 * dt_ns;
-            while j + 1 < samples.len() && samples[j + 1].0 <= t + dt_ns / 2 {
-                j += 1;
+        let (mut i0, mut i1) = (None, 0usize);
+        for (k, &(t, a)) in samples.iter().enumerate() {
+            if k > 0 {
+                let hold = self.grid.last().copied().unwrap_or(0.0);
+                let extra = fit.slots(t - samples[k - 1].0) - 1;
+                if self.grid.len() + extra >= cap {
+                    return Err(AnalysisError::BadParameter(format!(
+                        "a gap of {:.1} s in the steering samples",
+                        (t - samples[k - 1].0) as f64 * 1e-9
+                    )));
+                }
+                self.grid.extend(std::iter::repeat_n(hold, extra));
             }
-            self.grid.push(samples[j].1.to_degrees());
+            if i0.is_none() && t >= t0_ns {
+                i0 = Some(self.grid.len());
+            }
+            self.grid.push(a.to_degrees());
+            if t <= t1_ns {
+                i1 = self.grid.len();
+            }
         }
-        let i0 = (((t0_ns - t_first) as f64 / dt_ns as f64).ceil().max(0.0)) as usize;
-        let i1 =
-            ((((t1_ns - t_first) as f64 / dt_ns as f64).floor() as i64 + 1).max(0) as usize).min(n);
+        let i0 = i0.unwrap_or(self.grid.len());
         if i1 <= i0 + 4 {
             return Err(AnalysisError::TooShort(format!(
                 "{} samples in the window, need 5",
@@ -169,7 +177,7 @@ impl Extractor {
         let w = &y[i0..i1];
         let peak = crate::analysis::peak_abs(w);
         let rms = crate::analysis::rms(w);
-        let per_s = 1e9 / dt_ns as f64;
+        let per_s = 1e9 / fit.period_ns;
         let c1 = i0.saturating_sub((CRUISE_GUARD_S * per_s).round() as usize);
         let c0 = c1
             .saturating_sub((CRUISE_WINDOW_S * per_s).round() as usize)

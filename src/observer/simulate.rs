@@ -22,6 +22,7 @@ use super::ObserverConfig;
 use crate::analysis::filter::Bandpass;
 use crate::events::{Detector, Sample};
 use crate::model::braking::driver::{CRUISE_TAU_S, CRUISE_TOL_MPS, JERK_MPS3, V_STANDSTILL_MPS};
+use crate::model::excitation::Excitation;
 use crate::model::rhs::ix;
 use crate::model::{Integrator, Scenario, Simulator, VehicleParams};
 
@@ -143,23 +144,245 @@ pub struct SimulatedEvent {
     pub phase_cos: f64,
 }
 
-/// Runs one braking event at (`clearance_m`, `v0_mps`, `decel_g`) with `seed` on vehicle `p`,
-/// started as `shape` says.
+/// The model's output over one braking event, before any sensor: δ_sw (MODEL.md §8, or the
+/// rim angle of §15 when the column is on), the speed and the brake pedal, sampled at `fs_hz`
+/// from t = 0 (the start of the run) to a little after the detector's window closes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModelRun {
+    pub fs_hz: f64,
+    pub sw_rad: Vec<f64>,
+    pub speed_mps: Vec<f64>,
+    pub pedal: Vec<bool>,
+    /// cos(φ_R − φ_L) of the run's unbalance phases (MODEL.md §7).
+    pub phase_cos: f64,
+}
+
+/// Time the model keeps running after the speed falls below the detector's stop speed, beyond
+/// the detector's tail ([`crate::events::EventConfig::tail_s`]): the detector closes the window
+/// at the first steering sample after the first speed sample below the stop speed plus the
+/// tail, at most 20 ms (one speed-signal period) plus one steering period later; the rest is
+/// margin (s).
+const RUN_OUT_S: f64 = 0.15;
+
+/// firmware-sim's driver (drive.rs) as a control law over one event: pull away at `accel`
+/// (jerk-limited, first-order approach to `v0`), cruise `cruise_s`, then brake at `a_max` with
+/// the pedal ramp, hold at standstill, release.
+#[derive(Clone, Debug)]
+struct DriveLaw {
+    v0_mps: f64,
+    accel: f64,
+    cruise_s: f64,
+    hold_s: f64,
+    ramp_s: f64,
+    a_max: f64,
+    onset: f64,
+    cruise_from: Option<f64>,
+    demand: f64,
+    t_stop: Option<f64>,
+    released_at: Option<f64>,
+}
+
+impl DriveLaw {
+    /// The demand at time `t` and speed `v` (m/s², > 0 braking) and whether the pedal is
+    /// pressed; `dt` is the control period.
+    fn control(&mut self, t: f64, v: f64, dt: f64) -> (f64, bool) {
+        if self.cruise_from.is_none() && (v - self.v0_mps).abs() <= CRUISE_TOL_MPS {
+            self.cruise_from = Some(t);
+        }
+        if let Some(t_c) = self.cruise_from {
+            if self.onset.is_infinite() && t - t_c >= self.cruise_s {
+                self.onset = t;
+            }
+        }
+        if t >= self.onset && self.t_stop.is_none() && v <= V_STANDSTILL_MPS {
+            self.t_stop = Some(t);
+        }
+        let a = match self.t_stop {
+            None if t < self.onset => {
+                // firmware-sim's driver: first-order speed approach limited to the pull-away
+                // acceleration, jerk-limited.
+                let want = ((v - self.v0_mps) / CRUISE_TAU_S).clamp(-self.accel, 0.0);
+                let step = JERK_MPS3 * dt;
+                self.demand += (want - self.demand).clamp(-step, step);
+                self.demand
+            }
+            None => self.a_max * ((t - self.onset) / self.ramp_s).clamp(0.0, 1.0),
+            Some(ts) if t < ts + self.hold_s => self.a_max,
+            Some(ts) => self.a_max * (1.0 - (t - ts - self.hold_s) / self.ramp_s).max(0.0),
+        };
+        if self
+            .t_stop
+            .is_some_and(|ts| t >= ts + self.hold_s + self.ramp_s)
+        {
+            self.released_at.get_or_insert(t);
+        }
+        (a, t >= self.onset && self.released_at.is_none())
+    }
+}
+
+/// One run of the model and its recorded output, advanced in control periods.
+#[derive(Clone)]
+struct Branch {
+    sim: Simulator,
+    law: Option<DriveLaw>,
+    out: ModelRun,
+    /// Control periods recorded so far.
+    k: usize,
+    /// Time the speed first fell below the detector's stop speed after the onset.
+    below_stop: Option<f64>,
+}
+
+/// What every branch of one grid run shares.
+struct Runner {
+    g: f64,
+    stride: u64,
+    dt_ctl: f64,
+    /// Longest run (control periods).
+    n_out: usize,
+    /// The brake onset of `EventShape::Single` (s).
+    onset_single: f64,
+    stop_speed: f64,
+    run_out: f64,
+    /// Control periods simulated so far, over every branch.
+    periods: std::cell::Cell<u64>,
+}
+
+impl Runner {
+    /// One control period of `b`: the driver's demand, the recorded output, the model's
+    /// advance. False when the run is complete.
+    fn tick(&self, b: &mut Branch) -> bool {
+        let t = b.sim.t();
+        let v = b.sim.state()[ix::V];
+        let pressed = match b.law.as_mut() {
+            None => t >= self.onset_single,
+            Some(law) => {
+                let (a, pressed) = law.control(t, v, self.dt_ctl);
+                b.sim.set_decel_demand(a);
+                pressed
+            }
+        };
+        b.out.sw_rad.push(b.sim.model().delta_sw(b.sim.state()));
+        b.out.speed_mps.push(v);
+        b.out.pedal.push(pressed);
+        let onset = b.law.as_ref().map_or(self.onset_single, |l| l.onset);
+        if t > onset && v < self.stop_speed {
+            b.below_stop.get_or_insert(t);
+        }
+        if b.k >= self.n_out || b.below_stop.is_some_and(|ts| t >= ts + self.run_out) {
+            return false;
+        }
+        b.sim.advance(self.stride);
+        b.k += 1;
+        self.periods.set(self.periods.get() + 1);
+        true
+    }
+
+    /// Whether the next control period of `b` would set the brake onset (or has): where a run
+    /// branches into its decelerations.
+    fn at_onset(&self, b: &Branch) -> bool {
+        match &b.law {
+            None => true,
+            Some(law) if law.onset.is_finite() => true,
+            Some(law) => {
+                let mut probe = law.clone();
+                probe.control(b.sim.t(), b.sim.state()[ix::V], self.dt_ctl);
+                probe.onset.is_finite()
+            }
+        }
+    }
+
+    /// Runs `b` to the brake onset, then one braking per deceleration (clones of `b`).
+    fn brake_branches(
+        &self,
+        mut b: Branch,
+        decels_g: &[f64],
+        what: &dyn Fn() -> String,
+    ) -> anyhow::Result<Vec<ModelRun>> {
+        while !self.at_onset(&b) {
+            if !self.tick(&mut b) {
+                break;
+            }
+        }
+        let mut branches: Vec<Branch> = (1..decels_g.len()).map(|_| b.clone()).collect();
+        branches.push(b);
+        let mut runs = Vec::with_capacity(decels_g.len());
+        for (mut b, &d) in branches.into_iter().zip(decels_g) {
+            if let Some(law) = b.law.as_mut() {
+                law.a_max = d * self.g;
+            }
+            while self.tick(&mut b) {}
+            if b.out.sw_rad.iter().any(|x| !x.is_finite()) {
+                bail!("model diverged ({}, {d} g)", what());
+            }
+            runs.push(b.out);
+        }
+        Ok(runs)
+    }
+}
+
+/// The runs of [`run_model_grid`] and what they cost.
+#[derive(Clone, Debug)]
+pub struct GridRuns {
+    /// `[speed][decel]`.
+    pub runs: Vec<Vec<ModelRun>>,
+    /// Control periods the model was advanced, over all branches: the cost. Each run's own
+    /// length (`sw_rad.len()`) is what it would have cost alone.
+    pub control_periods: u64,
+}
+
+/// Runs the model through one braking event per initial speed in `speeds_mps` and
+/// deceleration in `decels_g` on vehicle `p` with clearance `clearance_m`, with as little
+/// repeated model time as the events allow.
+///
+/// With `EventShape::Drive` (firmware-sim's driver) every event starts with the car pulling
+/// away from a stop at the same acceleration, and the driver's demand does not depend on the
+/// target speed until the speed comes within `accel · τ` of it. So one pull-away (the trunk,
+/// seeded by `seeds[0]`) serves every speed: each speed's run branches off the trunk at the
+/// last control period its driver would have shared, takes its own unbalance phases and road
+/// noise from `seeds[i]` there (MODEL.md §7; the several seconds of approach and cruise that
+/// follow are far longer than the steering system's memory), and itself branches at the brake
+/// onset into one braking per deceleration. The decelerations of one speed therefore share
+/// their pre-brake history, as consecutive stops of one car would not; the response table fits
+/// each feature per speed and deceleration, so that costs it nothing. Each run stops
+/// [`RUN_OUT_S`] after the speed falls below the detector's stop speed, after which nothing can
+/// reach the features. `EventShape::Single` (MODEL.md §6's own event, whose deceleration is
+/// part of the scenario) runs every event on its own, seeded by `seeds[i]`.
 #[allow(clippy::too_many_arguments)]
-pub fn simulate_event(
+pub fn run_model_grid(
     p: &VehicleParams,
     clearance_m: f64,
-    v0_mps: f64,
-    decel_g: f64,
-    seed: u64,
+    speeds_mps: &[f64],
+    decels_g: &[f64],
+    seeds: &[u64],
     shape: EventShape,
-    sensor: &SensorModel,
     cfg: &ObserverConfig,
-) -> anyhow::Result<SimulatedEvent> {
+) -> anyhow::Result<GridRuns> {
+    if seeds.len() != speeds_mps.len() {
+        bail!(
+            "{} seeds for {} speeds: one per speed",
+            seeds.len(),
+            speeds_mps.len()
+        );
+    }
+    if speeds_mps.is_empty() || decels_g.is_empty() {
+        return Ok(GridRuns {
+            runs: vec![Vec::new(); speeds_mps.len()],
+            control_periods: 0,
+        });
+    }
+    if speeds_mps
+        .iter()
+        .chain(decels_g)
+        .any(|x| !(x.is_finite() && *x > 0.0))
+    {
+        bail!("speeds and decelerations must be positive");
+    }
     let g = p.vehicle.gravity_mps2;
     let ramp = p.braking.ramp_s;
-    let (onset_est, kick, extra, accel) = match shape {
-        EventShape::Single => (p.braking.onset_s, None, 0.0, 0.0),
+    let vmax = speeds_mps.iter().cloned().fold(0.0, f64::max);
+    let slowest = decels_g.iter().cloned().fold(f64::INFINITY, f64::min);
+    let (onset_est, kick, extra, accel, cruise_s, hold_s) = match shape {
+        EventShape::Single => (p.braking.onset_s, None, 0.0, 0.0, 0.0, 0.0),
         EventShape::Drive {
             accel_g,
             cruise_s,
@@ -168,15 +391,22 @@ pub fn simulate_event(
             let a = accel_g.max(0.0) * g;
             // Pull-away (jerk-limited ramp, first-order approach) plus the cruise.
             let pull = if a > 0.0 {
-                v0_mps / a + a / JERK_MPS3 + 6.0 * CRUISE_TAU_S
+                vmax / a + a / JERK_MPS3 + 6.0 * CRUISE_TAU_S
             } else {
                 0.0
             };
-            (pull + cruise_s, Some(0.0), hold_s + ramp, a)
+            (
+                pull + cruise_s,
+                Some(0.0),
+                hold_s + ramp,
+                a,
+                cruise_s,
+                hold_s,
+            )
         }
     };
-    let stop_s = onset_est + ramp / 2.0 + v0_mps / (decel_g * g).max(0.1);
-    let sc = Scenario {
+    let stop_s = onset_est + ramp / 2.0 + vmax / (slowest * g).max(0.1);
+    let scenario = |v0_mps: f64, decel_g: f64, seed: u64| Scenario {
         clearance_m,
         seed,
         v0_mps: if accel > 0.0 { 0.0 } else { v0_mps },
@@ -193,83 +423,167 @@ pub fn simulate_event(
         integrator: Integrator::Rk4Adaptive,
         ..Scenario::default()
     };
-    let mut sim = Simulator::new(p, &sc).context("model scenario")?;
-    let [phi_l, phi_r] = sim.unbalance_phases();
-    let n_steps = (sc.duration_s / sc.h_s).round() as usize;
+    let sc0 = scenario(vmax, decels_g[0], seeds[0]);
     // 1 kHz output and control: the driver's pedal is updated and the state sampled every
     // `stride` grid steps, and the model advances `stride` steps at a time, merging free-flight
     // steps (`Integrator::Rk4Adaptive`) exactly as firmware-sim's plant does with its default
     // 1 ms control period.
-    let stride = 10;
-    let n_out = n_steps / stride;
-    let fs_true = 1.0 / (sc.h_s * stride as f64);
-    let mut sw = Vec::with_capacity(n_out + 1);
-    let mut speed = Vec::with_capacity(n_out + 1);
-    let mut pedal = Vec::with_capacity(n_out + 1);
-    // Drive shape: the driver's pedal (firmware-sim's drive.rs law).
-    let a_max = decel_g * g;
-    let dt_ctl = sc.h_s * stride as f64;
-    let mut onset = if accel > 0.0 {
-        f64::INFINITY
-    } else {
-        onset_est
+    let stride = 10u64;
+    let runner = Runner {
+        g,
+        stride,
+        dt_ctl: sc0.h_s * stride as f64,
+        n_out: ((sc0.duration_s / sc0.h_s).round() as u64 / stride) as usize,
+        onset_single: onset_est,
+        stop_speed: cfg.events.stop_speed_mps,
+        run_out: cfg.events.tail_s + RUN_OUT_S,
+        periods: std::cell::Cell::new(0),
     };
-    let mut cruise_from: Option<f64> = (accel <= 0.0).then_some(0.0);
-    let mut demand = 0.0f64;
-    let mut t_stop: Option<f64> = None;
-    let mut released_at: Option<f64> = None;
-    for k in 0..=n_out {
-        let t = sim.t();
-        let pressed = match shape {
-            EventShape::Single => t >= onset,
-            EventShape::Drive {
-                hold_s, cruise_s, ..
-            } => {
-                let v = sim.state()[ix::V];
-                if cruise_from.is_none() && (v - v0_mps).abs() <= CRUISE_TOL_MPS {
-                    cruise_from = Some(t);
+    let fs_hz = 1.0 / runner.dt_ctl;
+    let start = |v0_mps: f64, seed: u64| -> anyhow::Result<Branch> {
+        let sc = scenario(v0_mps, decels_g[0], seed);
+        let sim = Simulator::new(p, &sc).context("model scenario")?;
+        let [phi_l, phi_r] = sim.unbalance_phases();
+        let n = runner.n_out + 1;
+        Ok(Branch {
+            sim,
+            law: match shape {
+                EventShape::Single => None,
+                EventShape::Drive { .. } => Some(DriveLaw {
+                    v0_mps,
+                    accel,
+                    cruise_s,
+                    hold_s,
+                    ramp_s: ramp,
+                    a_max: decels_g[0] * g,
+                    onset: if accel > 0.0 {
+                        f64::INFINITY
+                    } else {
+                        onset_est
+                    },
+                    cruise_from: (accel <= 0.0).then_some(0.0),
+                    demand: 0.0,
+                    t_stop: None,
+                    released_at: None,
+                }),
+            },
+            out: ModelRun {
+                fs_hz,
+                sw_rad: Vec::with_capacity(n),
+                speed_mps: Vec::with_capacity(n),
+                pedal: Vec::with_capacity(n),
+                phase_cos: (phi_r - phi_l).cos(),
+            },
+            k: 0,
+            below_stop: None,
+        })
+    };
+    let what = |v0: f64| move || format!("c = {clearance_m} m, v0 = {v0} m/s, seed {}", seeds[0]);
+    if shape == EventShape::Single || accel <= 0.0 || speeds_mps.len() == 1 {
+        // No shared pull-away: every speed (and, for Single, every deceleration) on its own.
+        let runs = speeds_mps
+            .iter()
+            .zip(seeds)
+            .map(|(&v0, &seed)| {
+                if shape == EventShape::Single {
+                    decels_g
+                        .iter()
+                        .map(|&d| {
+                            let mut b = start(v0, seed)?;
+                            b.sim = Simulator::new(p, &scenario(v0, d, seed))?;
+                            Ok(runner.brake_branches(b, &[d], &what(v0))?.remove(0))
+                        })
+                        .collect()
+                } else {
+                    runner.brake_branches(start(v0, seed)?, decels_g, &what(v0))
                 }
-                if let Some(t_c) = cruise_from {
-                    if onset.is_infinite() && t - t_c >= cruise_s {
-                        onset = t;
-                    }
-                }
-                if t >= onset && t_stop.is_none() && v <= V_STANDSTILL_MPS {
-                    t_stop = Some(t);
-                }
-                let a = match t_stop {
-                    None if t < onset => {
-                        // firmware-sim's driver: first-order speed approach limited to the
-                        // pull-away acceleration, jerk-limited.
-                        let want = ((v - v0_mps) / CRUISE_TAU_S).clamp(-accel, 0.0);
-                        let step = JERK_MPS3 * dt_ctl;
-                        demand += (want - demand).clamp(-step, step);
-                        demand
-                    }
-                    None => a_max * ((t - onset) / ramp).clamp(0.0, 1.0),
-                    Some(ts) if t < ts + hold_s => a_max,
-                    Some(ts) => a_max * (1.0 - (t - ts - hold_s) / ramp).max(0.0),
-                };
-                if t_stop.is_some_and(|ts| t >= ts + hold_s + ramp) {
-                    released_at.get_or_insert(t);
-                }
-                sim.set_decel_demand(a);
-                t >= onset && released_at.is_none()
-            }
-        };
-        sw.push(sim.model().delta_sw(sim.state()));
-        speed.push(sim.state()[ix::V]);
-        pedal.push(pressed);
-        if k < n_out {
-            sim.advance(stride as u64);
-        }
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        return Ok(GridRuns {
+            runs,
+            control_periods: runner.periods.get(),
+        });
     }
-    if sw.iter().any(|x| !x.is_finite()) {
-        bail!("model diverged (c = {clearance_m} m, v0 = {v0_mps} m/s, {decel_g} g, seed {seed})");
+    // The trunk: a pull-away towards the highest speed; each speed branches off it.
+    let mut order: Vec<usize> = (0..speeds_mps.len()).collect();
+    order.sort_by(|&a, &b| speeds_mps[a].total_cmp(&speeds_mps[b]));
+    let mut trunk = start(vmax, seeds[0])?;
+    let mut out: Vec<Option<Vec<ModelRun>>> = vec![None; speeds_mps.len()];
+    for &i in &order {
+        let v0 = speeds_mps[i];
+        // The driver's demand towards v0 equals the trunk's while v <= v0 − accel·τ.
+        while trunk.sim.state()[ix::V] <= v0 - accel * CRUISE_TAU_S && runner.tick(&mut trunk) {}
+        let mut b = trunk.clone();
+        let law = b.law.as_mut().expect("drive shape");
+        law.v0_mps = v0;
+        b.sim.set_unbalance_phases(Excitation::phases_of(seeds[i]));
+        b.sim.reseed_noise(seeds[i]);
+        let [phi_l, phi_r] = b.sim.unbalance_phases();
+        b.out.phase_cos = (phi_r - phi_l).cos();
+        out[i] = Some(runner.brake_branches(b, decels_g, &what(v0))?);
+    }
+    Ok(GridRuns {
+        runs: out
+            .into_iter()
+            .map(|r| r.expect("every speed ran"))
+            .collect(),
+        control_periods: runner.periods.get(),
+    })
+}
+
+/// [`run_model_grid`] for one initial speed: one braking per deceleration in `decels_g`, all
+/// from the same pull-away and cruise, seeded by `seed`.
+pub fn run_model(
+    p: &VehicleParams,
+    clearance_m: f64,
+    v0_mps: f64,
+    decels_g: &[f64],
+    seed: u64,
+    shape: EventShape,
+    cfg: &ObserverConfig,
+) -> anyhow::Result<Vec<ModelRun>> {
+    Ok(
+        run_model_grid(p, clearance_m, &[v0_mps], decels_g, &[seed], shape, cfg)?
+            .runs
+            .remove(0),
+    )
+}
+
+/// Runs one braking event at (`clearance_m`, `v0_mps`, `decel_g`) with `seed` on vehicle `p`,
+/// started as `shape` says, and measures it through `sensor` ([`run_model`], then
+/// [`measure_run`] with the same seed).
+#[allow(clippy::too_many_arguments)]
+pub fn simulate_event(
+    p: &VehicleParams,
+    clearance_m: f64,
+    v0_mps: f64,
+    decel_g: f64,
+    seed: u64,
+    shape: EventShape,
+    sensor: &SensorModel,
+    cfg: &ObserverConfig,
+) -> anyhow::Result<SimulatedEvent> {
+    let run = run_model(p, clearance_m, v0_mps, &[decel_g], seed, shape, cfg)?.remove(0);
+    measure_run(&run, sensor, cfg, seed)
+}
+
+/// One model run seen through a steering angle sensor: δ_sw goes through `sensor` (its
+/// sampling phase, offset and noise drawn from `seed`), the speed through a 50 Hz speed signal,
+/// and both through the same [`Detector`] and [`Extractor`] that process a real log. Plus the
+/// true amplitude of MODEL.md §11 from the continuous δ_sw over the detected window.
+pub fn measure_run(
+    run: &ModelRun,
+    sensor: &SensorModel,
+    cfg: &ObserverConfig,
+    seed: u64,
+) -> anyhow::Result<SimulatedEvent> {
+    let (sw, speed, pedal, fs_true) = (&run.sw_rad, &run.speed_mps, &run.pedal, run.fs_hz);
+    if sw.is_empty() {
+        bail!("empty model run");
     }
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0b5e_77e5);
     let mut steer = Vec::with_capacity(sw.len() / 5);
-    sensor.sample_into(&sw, fs_true, &mut rng, &mut steer);
+    sensor.sample_into(sw, fs_true, &mut rng, &mut steer);
 
     // Merge the steering samples with a 50 Hz speed signal into the detector's stream.
     let mut det = Detector::new(cfg.events.clone());
@@ -324,7 +638,7 @@ pub fn simulate_event(
     let features = feats.context("too few steering samples in the simulated event")?;
     // True amplitude: 1 kHz δ_sw, same band-pass, same window.
     let bp = Bandpass::new(fs_true, 3.0, 25.0, 4)?;
-    let y = bp.filtfilt(&sw);
+    let y = bp.filtfilt(sw);
     let i0 = (rec.t_start_s * fs_true).round() as usize;
     let i1 = (((rec.t_end_s + cfg.events.tail_s) * fs_true).round() as usize + 1).min(y.len());
     let true_peak_deg = crate::analysis::peak_abs(&y[i0.min(i1)..i1]).to_degrees();
@@ -334,6 +648,6 @@ pub fn simulate_event(
         v0_kmh: rec.v0_kmh,
         decel_g: rec.decel_g,
         used: rec.used,
-        phase_cos: (phi_r - phi_l).cos(),
+        phase_cos: run.phase_cos,
     })
 }

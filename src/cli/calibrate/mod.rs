@@ -3,7 +3,7 @@
 //! detector and features) and [`crate::observer::table`] (the format); this module is the grid,
 //! the parallel sweep and the statistics.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
@@ -11,58 +11,88 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::analysis::sweep::{default_threads, par_map};
+use crate::analysis::sweep::default_threads;
 use crate::events::median_in_place;
 use crate::model::VehicleParams;
 use crate::observer::emulate::{coords, draw_coords, emulate_cells, RawEvent, N_COORDS};
 use crate::observer::linear::{parse_terms, Term, DEFAULT_TERMS};
 use crate::observer::sensor::SensorModel;
-use crate::observer::simulate::{
-    perturb_vehicle, simulate_event, EventShape, NuisanceRanges, SimulatedEvent,
-};
+use crate::observer::simulate::{perturb_vehicle, EventShape, NuisanceRanges};
 use crate::observer::table::{vehicle_hash, Cell, ResponseTable, FORMAT};
 use crate::observer::ObserverConfig;
+use crate::profile::Profile;
 
-/// Build the response table the clearance estimator needs.
+pub mod work;
+
+/// Build the response tables the clearance estimator needs, for vehicle profiles or a custom
+/// vehicle.
 ///
-/// Draws VEHICLES nuisance vehicles from the prior of issue 5 — ±10 % on each steering
-/// stiffness and damping (k_s, c_s, k_t, k_g, c_g), unbalance ×0.5–2 (log-uniform), road noise
-/// ×0.7–1.4 — and simulates each of them at every clearance × initial speed × deceleration of
-/// the grid (SEEDS events per cell, each with its own unbalance phases and road-noise
-/// realisation). An event is simulated the way a vehicle on the road sees it (--shape drive:
-/// cruising at the initial speed first, no initial kick, firmware-sim's brake pedal law to a
-/// stop and a 1 s hold; --shape single: MODEL.md §6's event from a kick). The steering-wheel
-/// angle goes through the sensor model (100 Hz, 0.1 deg steps with a random sub-step offset,
-/// 0.01 deg noise, the driver's slow lane keeping; MODEL.md §8), then through the same event
-/// detector and feature code as `shimmy estimate`.
+/// Usually: `shimmy calibrate --profile toyota_rav4` (or `--profile all`) builds the table of
+/// each profile named (config/vehicles/<name>/table.json) for its chassis, nuisance prior and
+/// steering angle sensor. Profiles that share a chassis and prior share one set of model runs:
+/// the model's output does not depend on the sensor, so each run is measured through every
+/// sensor those profiles have.
 ///
-/// Each cell holds, for ONE nuisance vehicle, the mean of (ln RMS, ln peak) of the band-passed
-/// angle (averaged over deceleration and made monotone in clearance) and the event-to-event
-/// spread around it (pooled per clearance). `shimmy estimate` mixes over the vehicles, so the
-/// nuisances count once per vehicle, not once per event. The table also calibrates the true
-/// steering-wheel amplitude against the measured noise-corrected RMS (shimmy_55kmh alert).
+/// What a table holds: VEHICLES nuisance vehicles drawn from the chassis's prior (default ±10 %
+/// on each steering stiffness and damping k_s, c_s, k_t, k_g, c_g; unbalance ×0.5–2,
+/// log-uniform; road noise ×0.7–1.4), each simulated at every clearance × initial speed ×
+/// deceleration of the grid the way a vehicle on the road sees it (--shape drive: firmware-sim's
+/// driver pulls away from a stop at 0.35 g, holds the speed 1.5 s, brakes to a stop; --shape
+/// single: MODEL.md §6's event from a kick). One pull-away per vehicle and clearance serves
+/// every speed, and each speed's run branches at the brake onset into every deceleration
+/// (src/observer/simulate.rs, `run_model_grid`). The steering-wheel angle goes through the
+/// sensor model (rate, step with a random sub-step offset, white noise, the driver's slow lane
+/// keeping; MODEL.md §8), then through the same event detector and feature code as `shimmy
+/// estimate`. From these events the table fits each feature per clearance and speed as a
+/// function of the deceleration and the seven nuisance coordinates, nonlinear in the kingpin
+/// damping, with its event scatter and per-vehicle misfit (src/observer/linear.rs), and
+/// calibrates the true steering-wheel amplitude against the measured noise-corrected RMS (the
+/// shimmy_55kmh alert).
 ///
-/// With more than 17 drawn vehicles the table also holds the linear nuisance model the default
-/// estimator method "linear" uses: each feature per clearance and speed as a function of the
-/// seven nuisance coordinates, nonlinear in the kingpin damping, with its event scatter and
-/// per-vehicle misfit (src/observer/linear.rs).
+/// Long builds: a progress bar with an ETA on a terminal, a progress line every 30 s otherwise
+/// (SHIMMY_PROGRESS_EVERY_S to change). Every finished job (one vehicle at one clearance) is
+/// saved in the work directory; killed and run again with the same arguments, the build
+/// resumes there and writes the same table, byte for byte. The work directory is removed after
+/// a successful build unless --keep-work is given.
 ///
-/// The table records a hash of the vehicle parameters; `shimmy estimate` refuses a table built
-/// for other parameters. Runs on all cores (SHIMMY_THREADS to limit). Model events:
-/// CLEARANCES × VEHICLES × speeds × decels × SEEDS.
+/// The table records the chassis's hash, the prior and the sensor; `shimmy estimate` refuses a
+/// table built for others. Runs on all cores (SHIMMY_THREADS or --threads to limit). Model
+/// events per chassis: CLEARANCES × VEHICLES × speeds × decels × SEEDS.
 ///
-/// Example:
-///   shimmy calibrate --vehicle vehicle.toml --out table.json
+/// Examples:
+///   shimmy calibrate --profile all
+///   shimmy calibrate --profile toyota_rav4 --threads 2
+///   shimmy calibrate --vehicle vehicle.toml --sensor-rate-hz 50 --out table.json
 #[derive(clap::Args, Debug)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
-    /// Vehicle parameters (TOML, MODEL.md §9 keys); default: MODEL.md §9.
+    /// Vehicle profiles to build the tables of (config/vehicles/<NAME>; "all" for every
+    /// profile found): each table is written to the file its profile.toml names. Repeat or
+    /// separate with commas.
+    #[arg(long, value_name = "NAME", value_delimiter = ',', conflicts_with_all = ["vehicle", "out", "refit", "events_in", "events_out", "exact_vehicle", "emulate"])]
+    pub profile: Vec<String>,
+
+    /// Vehicle parameters (TOML, MODEL.md §9 keys) of a custom build; default: MODEL.md §9.
     #[arg(long, value_name = "FILE")]
     pub vehicle: Option<PathBuf>,
 
-    /// Where to write the table (JSON).
-    #[arg(long, value_name = "TABLE")]
-    pub out: PathBuf,
+    /// Where to write the table of a custom build (JSON); required without --profile.
+    #[arg(long, value_name = "TABLE", required_unless_present = "profile")]
+    pub out: Option<PathBuf>,
+
+    /// Where finished jobs are kept so that a killed build can resume: in DIR/<hash>, the hash
+    /// naming the chassis, grid and sensors (default: `.calibrate-<hash>` beside the first
+    /// table written).
+    #[arg(long, value_name = "DIR")]
+    pub work_dir: Option<PathBuf>,
+
+    /// Keep the work directory after a successful build.
+    #[arg(long)]
+    pub keep_work: bool,
+
+    /// No progress output.
+    #[arg(long)]
+    pub quiet: bool,
 
     /// Number of clearances, log-spaced over --clearance-range.
     #[arg(long, default_value_t = 12)]
@@ -73,7 +103,7 @@ pub struct Args {
     pub clearance_range: Vec<f64>,
 
     /// Nuisance vehicles drawn from the prior (the same ones at every clearance).
-    #[arg(long, default_value_t = 120)]
+    #[arg(long, default_value_t = DEFAULT_VEHICLES)]
     pub vehicles: u32,
 
     /// Initial speeds (km/h). Events outside are predicted from the nearest speed. The
@@ -91,7 +121,10 @@ pub struct Args {
     #[arg(long, value_delimiter = ',', default_value = "0.3,0.55,0.8")]
     pub decels: Vec<f64>,
 
-    /// Events (unbalance phase / road-noise realisations) per vehicle and cell.
+    /// Independent replicates (pull-aways with their own unbalance phases and road noise) per
+    /// vehicle and cell. The decelerations of one speed share their pre-brake history, so a
+    /// table whose cells describe single vehicles (few vehicles, --per-vehicle) needs 2 or more
+    /// to measure one vehicle's event scatter.
     #[arg(long, default_value_t = 1)]
     pub seeds: u32,
 
@@ -179,6 +212,9 @@ pub struct Args {
     #[arg(long, default_value_t = 0, value_name = "N")]
     pub mixture_vehicles: u32,
 }
+
+/// Nuisance vehicles of a default build.
+pub const DEFAULT_VEHICLES: u32 = 60;
 
 /// Smallest spread of ln(feature) stored in a cell.
 pub const MIN_STD: f64 = 0.05;
@@ -420,29 +456,38 @@ struct EventsFile {
     events: Vec<TableEvent>,
 }
 
-/// Everything that decides a build's events: the grid, its sampling, the nuisance prior and
-/// the detector settings (not how the events are fitted afterwards).
-fn grid_fingerprint(grid: &Grid, cfg: &ObserverConfig) -> anyhow::Result<String> {
-    // The sensor is named only when it is not the reference bus's, so that events files written
-    // before the sensor could be chosen still match.
-    let sensor = if grid.sensor == SensorModel::default() {
-        String::new()
-    } else {
-        format!("; sensor {:?}", grid.sensor)
-    };
+/// How the model events of a build are generated (`run_model_grid`: one pull-away per drawn
+/// vehicle and clearance, branching into every speed and deceleration). Events files and work
+/// directories of other generators are refused.
+const GENERATOR: &str = "pull-away tree v2";
+
+/// Everything that decides the model runs of one job (one drawn vehicle at one clearance): the
+/// generator, the grid's axes, its shape and seeds, the nuisance prior and the detector
+/// settings; not how many vehicles or replicates a build draws (a job's events do not depend
+/// on them, [`work::event_seed`]), nor the sensor, nor how the events are fitted afterwards.
+/// A work directory is kept per model fingerprint and sensor set.
+fn model_fingerprint(grid: &Grid, cfg: &ObserverConfig) -> anyhow::Result<String> {
     Ok(format!(
-        "clearance_mm {:?}, speed_kmh {:?}, decel_g {:?}, vehicles {}, seeds {}, shape {:?}, \
-         seed_base {}, ranges {:?}; events {}",
+        "{GENERATOR}: clearance_mm {:?}, speed_kmh {:?}, decel_g {:?}, shape {:?}, seed_base {}, \
+         ranges {:?}; events {}",
         grid.clearance_mm,
         grid.speed_kmh,
         grid.decel_g,
-        grid.vehicles,
-        grid.seeds,
         grid.shape,
         grid.seed_base,
         grid.ranges,
         serde_json::to_string(&cfg.events)?
-    ) + &sensor)
+    ))
+}
+
+/// [`model_fingerprint`], the vehicles and replicates, and the sensor the events were measured
+/// through: what an events file records.
+fn grid_fingerprint(grid: &Grid, cfg: &ObserverConfig) -> anyhow::Result<String> {
+    Ok(model_fingerprint(grid, cfg)?
+        + &format!(
+            "; vehicles {}, seeds {}; sensor {:?}",
+            grid.vehicles, grid.seeds, grid.sensor
+        ))
 }
 
 /// The nuisance vehicles of a build.
@@ -452,83 +497,27 @@ fn drawn_vehicles(vehicle: &VehicleParams, grid: &Grid) -> Vec<VehicleParams> {
         .collect()
 }
 
-/// The jobs of a build in cell order ((ic · M + im) · nv + iv) · nd + id, then seed:
-/// (ic, clearance mm, im, iv, speed km/h, decel g, seed).
-fn jobs(grid: &Grid) -> Vec<(usize, f64, usize, usize, f64, f64, u64)> {
-    let mut jobs = Vec::with_capacity(grid.n_events());
-    for (ic, &c) in grid.clearance_mm.iter().enumerate() {
-        for im in 0..grid.vehicles as usize {
-            for (iv, &v) in grid.speed_kmh.iter().enumerate() {
-                for &d in &grid.decel_g {
-                    for _ in 0..grid.seeds {
-                        let seed = grid.seed_base + 10_000 + jobs.len() as u64;
-                        jobs.push((ic, c, im, iv, v, d, seed));
-                    }
-                }
-            }
-        }
-    }
-    jobs
-}
-
-/// Runs the model for every event of `grid` on `threads` threads (the expensive part of
-/// `shimmy calibrate`).
+/// Runs the model for every event of `grid` on `threads` threads and measures them through
+/// `grid.sensor` (the expensive part of `shimmy calibrate`; no work directory, no progress).
 pub fn simulate_table_events(
     vehicle: &VehicleParams,
     grid: &Grid,
     cfg: &ObserverConfig,
     threads: usize,
 ) -> anyhow::Result<Vec<TableEvent>> {
-    if grid.vehicles == 0 || grid.seeds == 0 {
-        anyhow::bail!("--vehicles and --seeds must be at least 1");
-    }
-    let sensor = grid.sensor;
     let vehicles = drawn_vehicles(vehicle, grid);
-    let jobs = jobs(grid);
-    let results: Vec<anyhow::Result<SimulatedEvent>> =
-        par_map(&jobs, threads, |&(_, c, im, _, v, d, seed)| {
-            simulate_event(
-                &vehicles[im],
-                c * 1e-3,
-                v / 3.6,
-                d,
-                seed,
-                grid.shape,
-                &sensor,
-                cfg,
-            )
-        });
-    let mut out = Vec::with_capacity(jobs.len());
-    for (r, &(ic, c, im, iv, v, d, seed)) in results.iter().zip(&jobs) {
-        let e = r
-            .as_ref()
-            .map_err(|e| anyhow::anyhow!("{e:#}"))
-            .with_context(|| {
-                format!("simulating c = {c} mm, vehicle {im}, {v} km/h, {d} g, seed {seed}")
-            })?;
-        let f = &e.features;
-        let z = crate::observer::features::z(f.rms_deg, f.peak_deg);
-        let cruise = f.cruise_rms_deg.with_context(|| {
-            format!(
-                "simulated event c = {c} mm, vehicle {im}, {v} km/h, {d} g, seed {seed} has no \
-                 pre-brake cruise window (events.pre_roll_s too short?)"
-            )
-        })?;
-        out.push(TableEvent {
-            raw: RawEvent {
-                ic,
-                im,
-                iv,
-                decel_g: d,
-                z: [z[0], z[1], crate::observer::features::z_cruise(cruise)],
-                phase_cos: e.phase_cos,
-            },
-            seed,
-            excess_rms_deg: f.excess_rms_deg,
-            true_peak_deg: e.true_peak_deg,
-        });
-    }
-    Ok(out)
+    let mut per_sensor = work::run_all(
+        &vehicles,
+        &vehicle_hash(vehicle)?,
+        grid,
+        &model_fingerprint(grid, cfg)?,
+        cfg,
+        &[grid.sensor],
+        threads,
+        None,
+        true,
+    )?;
+    Ok(per_sensor.remove(0))
 }
 
 /// Writes a build's events (`--events-out`).
@@ -611,17 +600,19 @@ pub fn assemble_table(
         grid.decel_g.len(),
         grid.seeds as usize,
     );
-    let jobs = jobs(grid);
-    let in_order = events.len() == jobs.len()
-        && events
-            .iter()
-            .zip(&jobs)
-            .all(|(e, j)| (e.raw.ic, e.raw.im, e.raw.iv, e.seed) == (j.0, j.2, j.3, j.6));
+    let in_order = events.len() == grid.n_events()
+        && events.iter().enumerate().all(|(k, e)| {
+            let rep = k % ns;
+            let id = (k / ns) % nd;
+            e.seed == work::event_seed(grid, e.raw.ic, e.raw.im, e.raw.iv, id, rep)
+                && e.raw.iv == (k / (ns * nd)) % nv
+                && e.raw.im == (k / (ns * nd * nv)) % nm
+        });
     if !in_order {
         anyhow::bail!(
-            "{} events do not match the grid's {} jobs",
+            "{} events do not match the grid's {} events",
             events.len(),
-            jobs.len()
+            grid.n_events()
         );
     }
     let z_all: Vec<[f64; 2]> = events.iter().map(|e| [e.raw.z[0], e.raw.z[1]]).collect();
@@ -799,8 +790,9 @@ fn emulate_into(
     t.validate()
 }
 
-/// The build's grid from the command line (checked).
-fn grid_from(args: &Args) -> anyhow::Result<Grid> {
+/// The build's grid from the command line (checked), with the nuisance prior `ranges` (a
+/// profile's, or the default) unless `--exact-vehicle` asks for none.
+fn grid_from(args: &Args, ranges: NuisanceRanges) -> anyhow::Result<Grid> {
     let [lo, hi] = args.clearance_range[..] else {
         anyhow::bail!("--clearance-range takes LOW,HIGH");
     };
@@ -824,7 +816,7 @@ fn grid_from(args: &Args) -> anyhow::Result<Grid> {
         ranges: if args.exact_vehicle {
             NuisanceRanges::NONE
         } else {
-            NuisanceRanges::default()
+            ranges
         },
         terms: parse_terms(&args.terms).context("--terms")?,
         mixture_vehicles: args.mixture_vehicles,
@@ -838,16 +830,214 @@ fn grid_from(args: &Args) -> anyhow::Result<Grid> {
     grid.sensor
         .validate()
         .context("--sensor-rate-hz / --sensor-step-deg / --sensor-noise-deg")?;
+    // The radices of `work::event_seed`.
+    if grid.vehicles >= 100_000
+        || grid.speed_kmh.len() >= 1_000
+        || grid.decel_g.len() >= 100
+        || grid.seeds >= 100
+        || grid.clearance_mm.len() >= 10_000
+    {
+        anyhow::bail!(
+            "grid too large: at most 99999 vehicles, 999 speeds, 99 decelerations, 99 seeds and \
+             9999 clearances"
+        );
+    }
     Ok(grid)
 }
 
+/// The work directory of a build: `--work-dir`, else `.calibrate-<hash>` beside `first_out`;
+/// the hash names the chassis, the grid and the sensors, so another build never resumes
+/// from it.
+fn work_dir_for(
+    args: &Args,
+    first_out: &Path,
+    vehicle_hash: &str,
+    fingerprint: &str,
+    sensors: &[SensorModel],
+) -> anyhow::Result<PathBuf> {
+    let key = crate::observer::table::fnv1a_hex(
+        format!(
+            "{vehicle_hash}|{fingerprint}|{}",
+            serde_json::to_string(sensors)?
+        )
+        .as_bytes(),
+    );
+    Ok(match &args.work_dir {
+        Some(d) => d.join(&key),
+        None => first_out
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."))
+            .join(format!(".calibrate-{key}")),
+    })
+}
+
+/// Writes `table` to `path` (through a temporary file).
+fn write_table(path: &Path, table: &ResponseTable) -> anyhow::Result<usize> {
+    let json = serde_json::to_string(table)?;
+    work::write_atomic(path, json.as_bytes())?;
+    Ok(json.len())
+}
+
+/// The model runs of one chassis: resumed from / checkpointed into its work directory, with
+/// progress; returns the events per sensor and the work directory.
+#[allow(clippy::too_many_arguments)]
+fn model_runs(
+    args: &Args,
+    vehicle: &VehicleParams,
+    grid: &Grid,
+    cfg: &ObserverConfig,
+    sensors: &[SensorModel],
+    threads: usize,
+    first_out: &Path,
+) -> anyhow::Result<(Vec<Vec<TableEvent>>, PathBuf)> {
+    let hash = vehicle_hash(vehicle)?;
+    let fingerprint = model_fingerprint(grid, cfg)?;
+    let dir = work_dir_for(args, first_out, &hash, &fingerprint, sensors)?;
+    if !args.quiet {
+        eprintln!(
+            "shimmy calibrate: {} jobs x {} model events ({} in all) on {threads} threads, \
+             measured through {} sensor(s); work directory {}",
+            work::jobs(grid).len(),
+            grid.speed_kmh.len() * grid.decel_g.len(),
+            grid.n_events(),
+            sensors.len(),
+            dir.display()
+        );
+    }
+    let vehicles = drawn_vehicles(vehicle, grid);
+    let events = work::run_all(
+        &vehicles,
+        &hash,
+        grid,
+        &fingerprint,
+        cfg,
+        sensors,
+        threads,
+        Some(&dir),
+        args.quiet,
+    )?;
+    Ok((events, dir))
+}
+
+/// Removes a finished build's work directory unless `--keep-work`.
+fn finish_work(args: &Args, dir: &Path) {
+    if args.keep_work {
+        return;
+    }
+    if let Err(e) = std::fs::remove_dir_all(dir) {
+        eprintln!(
+            "shimmy calibrate: could not remove the work directory {}: {e}",
+            dir.display()
+        );
+    }
+}
+
+/// `--profile`: the tables of the profiles named, one set of model runs per chassis and prior.
+fn run_profiles(args: &Args, cfg: &ObserverConfig, threads: usize) -> anyhow::Result<()> {
+    let t0 = Instant::now();
+    let mut profiles = Vec::new();
+    if args.profile.iter().any(|p| p == "all") {
+        for p in crate::profile::load_all() {
+            profiles.push(p?);
+        }
+        if profiles.is_empty() {
+            anyhow::bail!(
+                "--profile all: no vehicle profile found (searched {})",
+                crate::profile::search_dirs()
+                    .iter()
+                    .map(|d| d.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
+    } else {
+        for name in &args.profile {
+            profiles.push(Profile::load(name)?);
+        }
+    }
+    // Group by chassis and prior: each group is one set of model runs.
+    let mut groups: Vec<(String, Vec<Profile>)> = Vec::new();
+    for p in profiles {
+        if p.table_path.is_none() {
+            anyhow::bail!(
+                "profile {} names no table file (`table = \"table.json\"` in its profile.toml)",
+                p.name
+            );
+        }
+        let key = format!("{}|{}", p.chassis_hash()?, serde_json::to_string(&p.prior)?);
+        match groups.iter_mut().find(|(k, _)| *k == key) {
+            Some((_, g)) => g.push(p),
+            None => groups.push((key, vec![p])),
+        }
+    }
+    for (_, group) in &groups {
+        let lead = &group[0];
+        let mut grid = grid_from(args, lead.prior)?;
+        let mut sensors: Vec<SensorModel> = Vec::new();
+        for p in group {
+            if !sensors.contains(&p.sensor) {
+                sensors.push(p.sensor);
+            }
+        }
+        if !args.quiet {
+            eprintln!(
+                "shimmy calibrate: chassis of {} ({}): profiles {}",
+                lead.name,
+                lead.vehicle_source,
+                group
+                    .iter()
+                    .map(|p| p.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
+        let first_out = lead.table_path.clone().expect("checked above");
+        let (per_sensor, dir) = model_runs(
+            args,
+            &lead.vehicle,
+            &grid,
+            cfg,
+            &sensors,
+            threads,
+            &first_out,
+        )?;
+        for (sensor, events) in sensors.iter().zip(&per_sensor) {
+            grid.sensor = *sensor;
+            let table = assemble_table(&lead.vehicle, &grid, events)?;
+            for p in group.iter().filter(|p| p.sensor == *sensor) {
+                let path = p.table_path.as_ref().expect("checked above");
+                let bytes = write_table(path, &table)?;
+                eprintln!(
+                    "shimmy calibrate: wrote {} for profile {} ({bytes} bytes)",
+                    path.display(),
+                    p.name
+                );
+            }
+        }
+        finish_work(args, &dir);
+    }
+    eprintln!(
+        "shimmy calibrate: done in {:.1} s",
+        t0.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let vehicle = super::estimate::load_vehicle(args.vehicle.as_deref())?;
     let cfg = match &args.config {
         Some(p) => ObserverConfig::load(p)?,
         None => ObserverConfig::default(),
     };
     let threads = args.threads.unwrap_or_else(default_threads);
+    if !args.profile.is_empty() {
+        return run_profiles(&args, &cfg, threads);
+    }
+    let out = args
+        .out
+        .clone()
+        .context("--out TABLE is required without --profile")?;
+    let vehicle = super::estimate::load_vehicle(args.vehicle.as_deref())?;
     let t0 = Instant::now();
     if let Some(src) = &args.refit {
         let mut t = ResponseTable::load(src)?;
@@ -860,18 +1050,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         pool_spread_globally(&mut t);
         t.provenance += "; additive vehicle model (refit); one pooled spread";
         t.validate()?;
-        let json = serde_json::to_string(&t)?;
-        std::fs::write(&args.out, &json)
-            .with_context(|| format!("cannot write {}", args.out.display()))?;
+        write_table(&out, &t)?;
         eprintln!(
             "shimmy calibrate: refitted {} into {}",
             src.display(),
-            args.out.display()
+            out.display()
         );
         return Ok(());
     }
-    let grid = grid_from(&args)?;
-    let events = match &args.events_in {
+    let grid = grid_from(&args, NuisanceRanges::default())?;
+    let (events, dir) = match &args.events_in {
         Some(path) => {
             let ev = load_events(path, &vehicle, &grid, &cfg)?;
             eprintln!(
@@ -879,27 +1067,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 ev.len(),
                 path.display()
             );
-            ev
+            (ev, None)
         }
         None => {
-            eprintln!(
-                "shimmy calibrate: {} model runs on {threads} threads",
-                grid.n_events()
-            );
-            simulate_table_events(&vehicle, &grid, &cfg, threads)?
+            let (mut per_sensor, dir) =
+                model_runs(&args, &vehicle, &grid, &cfg, &[grid.sensor], threads, &out)?;
+            (per_sensor.remove(0), Some(dir))
         }
     };
     if let Some(path) = &args.events_out {
         save_events(path, &vehicle, &grid, &cfg, &events)?;
     }
     let table = assemble_table(&vehicle, &grid, &events)?;
-    let json = serde_json::to_string(&table)?;
-    std::fs::write(&args.out, &json)
-        .with_context(|| format!("cannot write {}", args.out.display()))?;
+    let bytes = write_table(&out, &table)?;
+    if let Some(dir) = dir {
+        finish_work(&args, &dir);
+    }
     eprintln!(
-        "shimmy calibrate: wrote {} ({} bytes, {} cells) in {:.1} s",
-        args.out.display(),
-        json.len(),
+        "shimmy calibrate: wrote {} ({bytes} bytes, {} cells) in {:.1} s",
+        out.display(),
         table.cells.len(),
         t0.elapsed().as_secs_f64()
     );
@@ -970,6 +1156,7 @@ mod tests {
             &["--emulate", "120", "--per-vehicle"][..],
             &["--emulate", "120", "--refit", "old.json"],
             &["--exact-vehicle", "--refit", "old.json"],
+            &["--profile", "toyota_rav4"],
         ] {
             let e = parse(bad).err().unwrap().to_string();
             assert!(e.contains("cannot be used with"), "{bad:?}: {e}");
@@ -977,8 +1164,7 @@ mod tests {
     }
 
     /// `--sensor-*` chooses the sensor the table's events go through; the table records it, and
-    /// an events file names it only when it is not the reference bus's (files written before
-    /// the option existed still load).
+    /// so does an events file.
     #[test]
     fn the_table_is_built_for_the_sensor_asked_for() {
         use clap::Parser;
@@ -1002,12 +1188,15 @@ mod tests {
                 "0.5",
             ];
             a.extend_from_slice(extra);
-            grid_from(&Cli::try_parse_from(a).unwrap().args)
+            grid_from(
+                &Cli::try_parse_from(a).unwrap().args,
+                NuisanceRanges::default(),
+            )
         };
         let cfg = ObserverConfig::default();
         let reference = grid(&[]).unwrap();
         assert_eq!(reference.sensor, SensorModel::default());
-        assert!(!grid_fingerprint(&reference, &cfg)
+        assert!(!model_fingerprint(&reference, &cfg)
             .unwrap()
             .contains("sensor"));
         let fine = grid(&["--sensor-step-deg", "0.01", "--sensor-rate-hz", "200"]).unwrap();
