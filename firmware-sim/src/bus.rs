@@ -107,7 +107,8 @@ pub struct MessageStats {
     pub bad_checksum: u64,
     /// Sent with frozen values (stuck sensor).
     pub stuck: u64,
-    /// Values clamped to the signal's range or not encodable.
+    /// Values clamped to what the signal's bits hold (or the bus's stated `range`), or not
+    /// encodable.
     pub encode_clamped: u64,
 }
 
@@ -135,9 +136,11 @@ struct Field {
     /// Steps for `coarse` / `remainder`: the fine step the sensor resolves and the coarse one.
     fine: f64,
     coarse: f64,
-    /// The range the ECU clamps to (physical unit).
+    /// The range the ECU clamps to (physical unit), and half a step: a value within half a step
+    /// outside it rounds onto its edge and is not counted as clamped.
     lo: f64,
     hi: f64,
+    half_step: f64,
 }
 
 impl Field {
@@ -305,16 +308,22 @@ impl Bus {
                 let si = sig(&f.signal)?;
                 let s = &m.signals[si];
                 let (blo, bhi) = bits_range(s);
+                // What the bits hold, or the range the bus states. Not the DBC's `[min|max]`:
+                // opendbc's are often wrong (the RAV4's ACCEL_X says [0|65535] while the real
+                // car sends -3.9..2.3 m/s²).
                 let (lo, hi) = match f.range {
-                    Some([a, b]) => (a.max(blo), b.min(bhi)),
-                    None if s.min < s.max => (s.min.max(blo), s.max.min(bhi)),
-                    None => (blo, bhi),
+                    Some([a, b]) if a.max(blo) <= b.min(bhi) => (a.max(blo), b.min(bhi)),
+                    _ => (blo, bhi),
                 };
                 let own = s.factor.abs();
                 let (fine, coarse) = match f.form {
                     Form::Coarse => (f.fine_step.unwrap_or(own), own),
                     Form::Remainder => (own, f.coarse_step.unwrap_or(own)),
                     _ => (own, own),
+                };
+                let half_step = match s.kind {
+                    ValueKind::Unsigned | ValueKind::Signed => 0.5 * own,
+                    ValueKind::Float32 | ValueKind::Float64 => 0.0,
                 };
                 fields.push(Field {
                     signal: si,
@@ -327,6 +336,7 @@ impl Bus {
                     coarse,
                     lo,
                     hi,
+                    half_step,
                 });
             }
             let counter = match &spec_m.counter {
@@ -710,8 +720,10 @@ impl Bus {
                     continue;
                 }
                 if v < f.lo || v > f.hi {
+                    if v < f.lo - f.half_step || v > f.hi + f.half_step {
+                        clamped += 1;
+                    }
                     v = v.clamp(f.lo, f.hi);
-                    clamped += 1;
                 }
                 if sig.encode_phys(v, payload).is_err() {
                     clamped += 1;
@@ -860,6 +872,7 @@ mod tests {
             coarse,
             lo: f64::NEG_INFINITY,
             hi: f64::INFINITY,
+            half_step: 0.0,
         };
         let c = f(Form::Coarse, 0.1, 1.5);
         let r = f(Form::Remainder, 0.1, 1.5);

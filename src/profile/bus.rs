@@ -149,8 +149,8 @@ pub struct BusField {
     /// `form = "remainder"`: the coarse signal's step.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub coarse_step: Option<f64>,
-    /// The range the ECU clamps to, in the signal's physical unit, where the DBC's `[min|max]`
-    /// is known to be wrong (default: the DBC's range, or the bits' when it gives none).
+    /// The range the ECU clamps to, in the signal's physical unit (default: what the signal's
+    /// bits hold; the DBC's `[min|max]` is not used, opendbc's are often wrong).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub range: Option<[f64; 2]>,
 }
