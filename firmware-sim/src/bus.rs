@@ -12,6 +12,12 @@
 //! checksums come from `shimmy::signals::checksum::ChecksumKind`. The bus is never derived from
 //! a signal mapping: it states the car's conventions itself.
 //!
+//! Steering torque (`steer_torque_nm`, where a bus carries one): the torsion-bar reading −T_c
+//! of MODEL.md §15 when the vehicle's `[column]` is enabled; with the default 5-DOF model there is
+//! no torsion bar (the rim and the hands are lumped into the rack restraint k_g), so it is 0 plus
+//! the scenario's `steer_torque_noise_nm`. Yaw rate and lateral acceleration are kinematic (see
+//! `crate::sim`).
+//!
 //! Not here: the plant or the drive cycle (values arrive as a [`Sample`]), nor any output.
 //! [`Bus::poll`] allocates nothing.
 
@@ -222,6 +228,9 @@ pub struct Bus {
     record: Option<Vec<SentValues>>,
 }
 
+/// Fault windows `[start, end)` (ns since the start of the run).
+type Windows = Vec<(i64, i64)>;
+
 fn ns(s: f64) -> i64 {
     (s * 1e9).round() as i64
 }
@@ -273,7 +282,7 @@ impl Bus {
         }
         let mut setup = ChaCha8Rng::seed_from_u64(seed);
         setup.set_stream(10);
-        let pick = |name: &str| -> (Vec<(i64, i64)>, Vec<(i64, i64)>) {
+        let pick = |name: &str| -> (Windows, Windows) {
             let w = |a: f64, d: f64| (ns(a), ns(a + d));
             let stuck = faults
                 .stuck

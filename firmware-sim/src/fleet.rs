@@ -44,10 +44,10 @@ use shimmy::profile::Profile;
 ///
 /// Generates VEHICLES held-out vehicles (clearance log-uniform 0.03–0.4 mm, nuisances drawn per
 /// vehicle), simulates EVENTS braking events each (30–100 km/h, 0.3–0.8 g, to a stop) through
-/// the reference bus into a candump log, runs `shimmy estimate`'s chain on each log with the
-/// response table, and prints the scores of issue 5 (alert rates, mean absolute error,
-/// interval coverage, "below" reports, shimmy_55kmh agreement). Per-vehicle results go to
-/// --json.
+/// the reference bus (or the --profile's) into a candump log, runs `shimmy estimate`'s chain on
+/// each log with the response table, and prints the scores of issue 5 (alert rates, mean
+/// absolute error, interval coverage, "below" reports, shimmy_55kmh agreement). Per-vehicle
+/// results go to --json.
 ///
 /// Examples:
 ///   shimmy calibrate --out table.json

@@ -600,3 +600,122 @@ fn a_bus_that_contradicts_the_profiles_sensor_is_refused() {
     let e = format!("{:#}", profile_bus(&p, None).unwrap_err());
     assert!(e.contains("SAS_01") && e.contains("82.9"), "{e}");
 }
+
+#[path = "../../tests/support/counting_alloc.rs"]
+mod counting_alloc;
+
+/// The per-step path (`Bus::poll`) allocates nothing on any profile's bus, split fields, split
+/// counters, nibble checksums and faults included.
+#[test]
+fn polling_a_profile_bus_allocates_nothing() {
+    use firmware_sim::bus::{Bus, MAX_BATCH};
+    use firmware_sim::scenario::{Faults, Sensors};
+    for name in [
+        "shimmy_reference",
+        "toyota_rav4",
+        "vw_mqb",
+        "honda_civic",
+        "hyundai_kia",
+    ] {
+        let Some(p) = profile(name) else {
+            continue;
+        };
+        let (db, spec) = profile_bus(&p, None).unwrap();
+        let faults = Faults {
+            drop_probability: 0.01,
+            bad_checksum_probability: 0.02,
+            ..Faults::default()
+        };
+        let mut bus = Bus::new(db, &spec, &Sensors::default(), &faults, 3, 0).unwrap();
+        let mut out: heapless::Vec<Frame, MAX_BATCH> = heapless::Vec::new();
+        let (mut sent, before) = (0usize, counting_alloc::allocations());
+        for k in 0..20_000 {
+            let t = k as f64 * 1e-3;
+            let s = Sample {
+                t_s: t,
+                steer_rad: (0.2 * (7.0 * t).sin() - 0.05).to_radians() * 20.0,
+                speed_mps: 15.0 - 0.5 * t,
+                accel_mps2: -0.5,
+                pedal_decel_mps2: if k % 5000 < 2000 { 4.0 } else { 0.0 },
+                brake_pressed: k % 5000 < 2000,
+                yaw_rate_rps: 0.01,
+                lat_accel_mps2: -0.2,
+                steer_torque_nm: 0.3 * (3.0 * t).sin(),
+            };
+            out.clear();
+            bus.poll(&s, &mut out);
+            sent += out.len();
+        }
+        let allocs = counting_alloc::allocations() - before;
+        assert_eq!(allocs, 0, "{name}: allocations while polling");
+        assert!(sent > 2_000, "{name}: {sent} frames");
+        let st = bus.stats();
+        assert!(st.iter().map(|m| m.bad_checksum).sum::<u64>() > 0, "{name}");
+        assert!(st
+            .iter()
+            .all(|m| m.generated == m.sent + m.dropped + m.bus_off));
+    }
+}
+
+/// `firmware-sim fleet --profile`: the profile's bus goes on the wire, its mapping decodes, its
+/// table estimates; another table is used when given, and a profile without one says how to
+/// build it.
+#[test]
+fn a_fleet_runs_on_a_profiles_bus() {
+    use clap::Parser;
+    use firmware_sim::fleet::{run, FleetArgs};
+    let base = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("profile_bus_fleet");
+    let _ = std::fs::remove_dir_all(&base);
+    let fleet = |profile: &str, extra: &[&str]| {
+        let dir = base.join(profile);
+        let json = dir.join("fleet.json");
+        let mut a = vec![
+            "fleet".to_string(),
+            "--profile".into(),
+            profile.into(),
+            "--vehicles".into(),
+            "1".into(),
+            "--events".into(),
+            "2".into(),
+            "--seed-base".into(),
+            "4711".into(),
+            "--threads".into(),
+            "1".into(),
+            "--work-dir".into(),
+            dir.display().to_string(),
+            "--json".into(),
+            json.display().to_string(),
+        ];
+        a.extend(extra.iter().map(|s| s.to_string()));
+        run(FleetArgs::parse_from(a)).map(|()| {
+            let v: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+            let eval: serde_json::Value = serde_json::from_str(
+                &std::fs::read_to_string(dir.join("fleet_4711.eval.json")).unwrap(),
+            )
+            .unwrap();
+            (v["vehicles"][0].clone(), eval)
+        })
+    };
+    // The reference profile with its own table: the events are found and used.
+    let (v, eval) = fleet("shimmy_reference", &[]).unwrap();
+    assert_eq!(eval["profile"], "shimmy_reference");
+    assert_eq!(v["events_recorded"], v["events_true"], "{v}");
+    assert!(v["events_used"].as_u64().unwrap() > 0, "{v}");
+
+    if profile("toyota_rav4").is_none() {
+        return;
+    }
+    // The RAV4 has no table yet: the error says how to build one.
+    let e = format!("{:#}", fleet("toyota_rav4", &[]).unwrap_err());
+    assert!(e.contains("shimmy calibrate --profile toyota_rav4"), "{e}");
+    // With the reference table (same chassis, a 100 Hz sensor): its bus decodes with its
+    // mapping and every event is found, and refused for the table's other sensor.
+    let table = repo("config/vehicles/shimmy_reference/table.json");
+    let (v, eval) = fleet("toyota_rav4", &["--table", table.to_str().unwrap()]).unwrap();
+    assert_eq!(eval["profile"], "toyota_rav4");
+    assert_eq!(v["events_recorded"], v["events_true"], "{v}");
+    assert_eq!(v["events_used"], 0, "{v}");
+    let log = read_log(&base.join("toyota_rav4/fleet_4711.log"));
+    assert!(log.iter().any(|f| f.id == 0x025) && log.iter().all(|f| f.id != 0x0A0));
+}

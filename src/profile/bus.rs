@@ -263,7 +263,7 @@ pub struct SteerSensor {
 /// Parses a hex payload of at most `max` bytes.
 pub fn parse_hex(text: &str, max: usize) -> anyhow::Result<Vec<u8>> {
     let t: String = text.chars().filter(|c| !c.is_whitespace()).collect();
-    if t.len() % 2 != 0 || !t.chars().all(|c| c.is_ascii_hexdigit()) {
+    if !t.len().is_multiple_of(2) || !t.chars().all(|c| c.is_ascii_hexdigit()) {
         bail!("payload `{text}`: not an even number of hex digits");
     }
     let bytes: Vec<u8> = (0..t.len() / 2)
