@@ -719,3 +719,57 @@ fn a_fleet_runs_on_a_profiles_bus() {
     let log = read_log(&base.join("toyota_rav4/fleet_4711.log"));
     assert!(log.iter().any(|f| f.id == 0x025) && log.iter().all(|f| f.id != 0x0A0));
 }
+
+/// The steering torque on the bus is the plant's: −T_c of MODEL.md §15 when the vehicle's column
+/// is enabled (here on the VW, whose LH_EPS_03 carries it in centi-N·m as magnitude and sign),
+/// and only sensor noise without the column.
+#[test]
+fn the_column_torque_reaches_the_bus() {
+    let Some(mut p) = profile("vw_mqb") else {
+        return;
+    };
+    let torque = |d: &Drive| -> Vec<(f64, f64)> {
+        let mag = signal(&d.db, "LH_EPS_03", "EPS_Lenkmoment");
+        let sign = signal(&d.db, "LH_EPS_03", "EPS_VZ_Lenkmoment");
+        d.frames
+            .iter()
+            .filter(|f| f.id == 0x09F)
+            .map(|f| {
+                let m = mag.phys(f.payload()).unwrap() * 0.01;
+                let got = if sign.phys(f.payload()) == Some(1.0) {
+                    -m
+                } else {
+                    m
+                };
+                (got, d.samples[&(f.id, f.t_ns)].steer_torque_nm)
+            })
+            .collect()
+    };
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+
+    let off = torque(&drive(p.clone()));
+    assert!(off.iter().all(|&(_, want)| want == 0.0));
+    // 0.02 N·m noise, 0.01 N·m steps.
+    let r = rms(&off.iter().map(|x| x.0).collect::<Vec<_>>());
+    assert!(r > 0.01 && r < 0.04, "no column: rms {r} N·m");
+
+    p.vehicle.column.enabled = true;
+    let on = torque(&drive(p));
+    // §15's T_c: about 0.1 N·m of shimmy while braking at 0.2 mm, little in between.
+    let peak = on.iter().map(|x| x.1.abs()).fold(0.0, f64::max);
+    assert!(peak > 0.05, "column: plant torque peak {peak} N·m");
+    for &(got, want) in &on {
+        assert!(
+            (got - want).abs() <= 0.11,
+            "decoded {got} N·m, plant {want}"
+        );
+    }
+    // The sign too: the decoded torque follows the plant's.
+    let dot: f64 = on.iter().map(|(g, w)| g * w).sum();
+    let (rg, rw) = (
+        rms(&on.iter().map(|x| x.0).collect::<Vec<_>>()),
+        rms(&on.iter().map(|x| x.1).collect::<Vec<_>>()),
+    );
+    let c = dot / (rg * rw * on.len() as f64);
+    assert!(c > 0.5, "decoded vs plant torque correlation {c}");
+}
