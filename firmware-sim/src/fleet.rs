@@ -9,6 +9,11 @@
 //! features → posterior → alerts), with the nominal vehicle's response table. The scores of
 //! issue 5's "must show" list are computed against the ground truth.
 //!
+//! The bus is the reference bus, or with `--profile` a vehicle profile's (its DBC and
+//! `bus.toml`, [`crate::bus::profile_bus`]); the profile also gives the nominal vehicle (its
+//! chassis), the mapping the estimate decodes with and the table, each unless given
+//! explicitly.
+//!
 //! Seeds: vehicle k uses `seed_base + k`. Keep `seed_base` away from the table's seeds
 //! (`shimmy calibrate --seed-base`, default 1 000 000) and from any seeds used while tuning.
 //!
@@ -27,33 +32,44 @@ use crate::plant::{ModelPlant, Plant};
 use crate::{FirmwareSim, RunInfo, Scenario};
 use shimmy::analysis::sweep::{default_threads, par_map};
 use shimmy::cli::estimate::estimate_files;
+use shimmy::dbc::Database;
 use shimmy::model::VehicleParams;
 use shimmy::observer::simulate::{perturb, NuisanceRanges};
 use shimmy::observer::table::{vehicle_hash, ResponseTable};
 use shimmy::observer::{ObserverConfig, Report};
+use shimmy::profile::bus::BusSpec;
+use shimmy::profile::Profile;
 
 /// Validate the clearance observer on a simulated fleet.
 ///
 /// Generates VEHICLES held-out vehicles (clearance log-uniform 0.03–0.4 mm, nuisances drawn per
 /// vehicle), simulates EVENTS braking events each (30–100 km/h, 0.3–0.8 g, to a stop) through
-/// the reference bus into a candump log, runs `shimmy estimate`'s chain on each log with the
-/// response table, and prints the scores of issue 5 (alert rates, mean absolute error,
-/// interval coverage, "below" reports, shimmy_55kmh agreement). Per-vehicle results go to
-/// --json.
+/// the reference bus (or the --profile's) into a candump log, runs `shimmy estimate`'s chain on
+/// each log with the response table, and prints the scores of issue 5 (alert rates, mean
+/// absolute error, interval coverage, "below" reports, shimmy_55kmh agreement). Per-vehicle
+/// results go to --json.
 ///
-/// Example:
+/// Examples:
 ///   shimmy calibrate --out table.json
 ///   firmware-sim fleet --table table.json --vehicles 40 --events 30 --seed-base 5000
+///   firmware-sim fleet --profile toyota_rav4 --vehicles 40 --events 30 --seed-base 5000
 #[derive(clap::Parser, Debug)]
 #[command(name = "firmware-sim fleet", verbatim_doc_comment)]
 pub struct FleetArgs {
     /// Response table from `shimmy calibrate`, built for the fleet's nominal vehicle
-    /// (`--vehicle`, or MODEL.md §9).
+    /// (`--vehicle`, the profile's chassis, or MODEL.md §9). Default with --profile: the
+    /// profile's table.
     #[arg(long, value_name = "FILE")]
-    pub table: PathBuf,
+    pub table: Option<PathBuf>,
+    /// A vehicle profile (name, alias or folder; config/vehicles/): its bus (DBC and bus.toml)
+    /// goes on the wire, its chassis is the nominal vehicle, its mapping decodes and its table
+    /// estimates, each unless --dbc, --vehicle, --mapping or --table says otherwise.
+    #[arg(long, value_name = "NAME")]
+    pub profile: Option<String>,
     /// The nominal vehicle the fleet's vehicles are drawn around (TOML, MODEL.md §9 keys;
-    /// default: MODEL.md §9), e.g. one with the steering column of §15 enabled. The table must
-    /// be built for the same file (`shimmy calibrate --vehicle FILE`).
+    /// default: the profile's chassis, or MODEL.md §9), e.g. one with the steering column of
+    /// §15 enabled. The table must be built for the same file (`shimmy calibrate --vehicle
+    /// FILE`).
     #[arg(long, value_name = "FILE")]
     pub vehicle: Option<PathBuf>,
     #[arg(long, default_value_t = 40)]
@@ -63,13 +79,14 @@ pub struct FleetArgs {
     /// Vehicle k uses seed seed_base + k.
     #[arg(long, default_value_t = 5000)]
     pub seed_base: u64,
-    /// Signal mapping of the reference bus.
-    #[arg(long, default_value = "config/vehicles/shimmy_reference/mapping.toml")]
-    pub mapping: PathBuf,
-    /// The bus's DBC, in place of the built-in reference bus (dbc/shimmy_reference.dbc): the
-    /// simulated ECUs pack their frames with it and the estimator decodes them with it. A
-    /// variant of the reference DBC with another scale factor on SAS_Angle gives a steering
-    /// angle sensor with another step (build the table for it with `shimmy calibrate
+    /// Signal mapping the estimate decodes with (default: the profile's, or
+    /// config/vehicles/shimmy_reference/mapping.toml).
+    #[arg(long)]
+    pub mapping: Option<PathBuf>,
+    /// The bus's DBC, in place of the built-in reference bus (dbc/shimmy_reference.dbc) or the
+    /// profile's: the simulated ECUs pack their frames with it and the estimator decodes them
+    /// with it. A variant of the reference DBC with another scale factor on SAS_Angle gives a
+    /// steering angle sensor with another step (build the table for it with `shimmy calibrate
     /// --sensor-step-deg`).
     #[arg(long, value_name = "FILE")]
     pub dbc: Option<PathBuf>,
@@ -148,6 +165,9 @@ pub struct EvalTruth {
     /// Hash of the nominal vehicle (`--vehicle`) of the run that wrote the log.
     #[serde(default = "default_vehicle_hash")]
     pub nominal_vehicle_hash: String,
+    /// `--profile` of the run that wrote the log (whose bus is in it).
+    #[serde(default)]
+    pub profile: Option<String>,
 }
 
 fn phase_none() -> String {
@@ -158,21 +178,86 @@ fn default_vehicle_hash() -> String {
     vehicle_hash(&VehicleParams::default()).unwrap_or_default()
 }
 
-/// The fleet's nominal vehicle (`--vehicle`, or MODEL.md §9) and its hash, read once per run.
+/// The fleet's nominal vehicle (`--vehicle`, the profile's chassis, or MODEL.md §9) and its
+/// hash, read once per run.
 pub struct Nominal {
     pub params: VehicleParams,
     pub hash: String,
 }
 
 impl Nominal {
+    /// `--vehicle`, or MODEL.md §9 (see [`Setup::load`] for the profile's chassis).
     pub fn load(args: &FleetArgs) -> anyhow::Result<Nominal> {
-        let params = match &args.vehicle {
-            Some(p) => VehicleParams::from_toml_file(p)
+        Nominal::load_or(args, None)
+    }
+
+    fn load_or(args: &FleetArgs, profile: Option<&Profile>) -> anyhow::Result<Nominal> {
+        let params = match (&args.vehicle, profile) {
+            (Some(p), _) => VehicleParams::from_toml_file(p)
                 .with_context(|| format!("--vehicle {}", p.display()))?,
-            None => VehicleParams::default(),
+            (None, Some(p)) => p.vehicle.clone(),
+            (None, None) => VehicleParams::default(),
         };
         let hash = vehicle_hash(&params)?;
         Ok(Nominal { params, hash })
+    }
+}
+
+/// Everything a fleet run fixes once: the profile (if any), the nominal vehicle, the bus on
+/// the wire and how the estimate decodes it.
+pub struct Setup {
+    pub profile: Option<Profile>,
+    pub nominal: Nominal,
+    pub db: Database,
+    pub bus: BusSpec,
+    /// The DBC the estimate decodes with (`None`: the one the mapping names, the reference).
+    pub dbc_path: Option<PathBuf>,
+    pub mapping: PathBuf,
+}
+
+impl Setup {
+    pub fn load(args: &FleetArgs) -> anyhow::Result<Setup> {
+        let profile = match &args.profile {
+            Some(n) => Some(Profile::load(n)?),
+            None => None,
+        };
+        let nominal = Nominal::load_or(args, profile.as_ref())?;
+        let (db, bus, dbc_path) = match &profile {
+            Some(p) => {
+                let (db, bus) = crate::bus::profile_bus(p, args.dbc.as_deref())?;
+                let path = args.dbc.clone().unwrap_or_else(|| p.dbc_path.clone());
+                (db, bus, Some(path))
+            }
+            None => {
+                let text = match &args.dbc {
+                    Some(p) => std::fs::read_to_string(p)
+                        .with_context(|| format!("cannot read DBC {}", p.display()))?,
+                    None => crate::bus::REFERENCE_DBC.to_string(),
+                };
+                (
+                    Database::parse(&text).0,
+                    crate::bus::reference_bus()?,
+                    args.dbc.clone(),
+                )
+            }
+        };
+        let mapping = match (&args.mapping, &profile) {
+            (Some(m), _) => m.clone(),
+            (None, Some(p)) => p.mapping_path.clone(),
+            (None, None) => PathBuf::from("config/vehicles/shimmy_reference/mapping.toml"),
+        };
+        Ok(Setup {
+            profile,
+            nominal,
+            db,
+            bus,
+            dbc_path,
+            mapping,
+        })
+    }
+
+    fn profile_name(&self) -> Option<String> {
+        self.profile.as_ref().map(|p| p.name.clone())
     }
 }
 
@@ -249,10 +334,21 @@ pub fn vehicle_plan(seed: u64, n_events: usize) -> VehiclePlan {
 /// The plan of the vehicle with `seed` around `nominal` (deterministic): the same draws as
 /// [`vehicle_plan`], applied to another vehicle.
 pub fn vehicle_plan_around(nominal: &VehicleParams, seed: u64, n_events: usize) -> VehiclePlan {
+    vehicle_plan_with(nominal, &NuisanceRanges::default(), seed, n_events)
+}
+
+/// [`vehicle_plan_around`] with the nuisances drawn from `prior` (a vehicle profile's
+/// `[chassis.prior]`) instead of the default ranges.
+pub fn vehicle_plan_with(
+    nominal: &VehicleParams,
+    prior: &NuisanceRanges,
+    seed: u64,
+    n_events: usize,
+) -> VehiclePlan {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     rng.set_stream(7);
     let c_mm = (0.03f64.ln() + rng.random::<f64>() * (0.4f64.ln() - 0.03f64.ln())).exp();
-    let p = perturb(nominal, &NuisanceRanges::default(), &mut rng);
+    let p = perturb(nominal, prior, &mut rng);
     let noise = p.excitation.noise_std_nm * rng.random_range(0.7..1.4);
     let events: Vec<(f64, f64)> = (0..n_events)
         .map(|_| {
@@ -273,13 +369,18 @@ pub fn vehicle_plan_around(nominal: &VehicleParams, seed: u64, n_events: usize) 
 fn vehicle_log(
     k: usize,
     args: &FleetArgs,
-    nominal: &Nominal,
+    setup: &Setup,
     dir: &Path,
 ) -> anyhow::Result<(PathBuf, EvalTruth)> {
+    let nominal = &setup.nominal;
     let seed = args.seed_base + k as u64;
     let log = dir.join(format!("fleet_{seed}.log"));
     let eval_path = log.with_extension("eval.json");
-    let plan = vehicle_plan_around(&nominal.params, seed, args.events);
+    let prior = setup
+        .profile
+        .as_ref()
+        .map_or_else(NuisanceRanges::default, |p| p.prior);
+    let plan = vehicle_plan_with(&nominal.params, &prior, seed, args.events);
     let c_mm = args.clearance_mm.unwrap_or(plan.clearance_mm);
     if args.reuse && log.exists() && eval_path.exists() {
         let text = std::fs::read_to_string(&eval_path)?;
@@ -308,6 +409,14 @@ fn vehicle_log(
             anyhow::bail!(
                 "{} was written for another nominal vehicle (--vehicle)",
                 eval_path.display()
+            );
+        }
+        if e.profile != setup.profile_name() {
+            anyhow::bail!(
+                "{} was written with the bus of profile {}, not {}",
+                eval_path.display(),
+                e.profile.as_deref().unwrap_or("(reference)"),
+                setup.profile_name().as_deref().unwrap_or("(reference)")
             );
         }
         if e.replicate != args.replicate {
@@ -351,18 +460,15 @@ fn vehicle_log(
         let phases = shimmy::model::excitation::Excitation::phases_of(seed);
         plant.set_unbalance_phases(phases);
     }
-    let dbc_text = match &args.dbc {
-        Some(p) => std::fs::read_to_string(p)
-            .with_context(|| format!("cannot read DBC {}", p.display()))?,
-        None => crate::bus::REFERENCE_DBC.to_string(),
-    };
-    let mut sim = FirmwareSim::new(
+    let mut sim = FirmwareSim::with_bus(
         &sc,
         plant,
-        &dbc_text,
+        setup.db.clone(),
+        &setup.bus,
         RunInfo {
             scenario_file: Some(sc_path.display().to_string()),
             vehicle_file: Some(vfile.display().to_string()),
+            profile: setup.profile_name(),
         },
     )?;
     sim.set_iface("vcan0");
@@ -383,6 +489,7 @@ fn vehicle_log(
         phase_change: args.phase_change.clone(),
         replicate: args.replicate,
         nominal_vehicle_hash: nominal.hash.clone(),
+        profile: setup.profile_name(),
         sw_amplitudes_55_deg: truth
             .events
             .iter()
@@ -398,18 +505,18 @@ fn vehicle_log(
 fn one_vehicle(
     k: usize,
     args: &FleetArgs,
-    nominal: &Nominal,
+    setup: &Setup,
     dir: &Path,
     table: &ResponseTable,
     cfg: &ObserverConfig,
 ) -> anyhow::Result<VehicleResult> {
     let t0 = Instant::now();
     let seed = args.seed_base + k as u64;
-    let (log, eval) = vehicle_log(k, args, nominal, dir)?;
+    let (log, eval) = vehicle_log(k, args, setup, dir)?;
     let c_mm = eval.clearance_true_mm;
     let (report, _) = estimate_files(
-        &args.mapping,
-        args.dbc.as_deref(),
+        &setup.mapping,
+        setup.dbc_path.as_deref(),
         Some(table.clone()),
         cfg.clone(),
         std::slice::from_ref(&log),
@@ -563,13 +670,28 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
             anyhow::bail!("--clearance-mm must be in (0, 2] mm, not {c}");
         }
     }
-    let table = ResponseTable::load(&args.table)?;
-    let nominal = Nominal::load(&args)?;
+    let setup = Setup::load(&args)?;
+    let table = match (&args.table, &setup.profile) {
+        (Some(t), _) => ResponseTable::load(t)?,
+        (None, Some(p)) => p.load_table()?.with_context(|| {
+            format!(
+                "profile {} names no table; give --table FILE or build it with `shimmy \
+                 calibrate --profile {}`",
+                p.name, p.name
+            )
+        })?,
+        (None, None) => anyhow::bail!("give --table FILE, or --profile NAME to use its table"),
+    };
+    let nominal = &setup.nominal;
     table
         .check_vehicle(&nominal.hash)
-        .with_context(|| match &args.vehicle {
-            Some(p) => format!("the fleet's nominal vehicle is {}", p.display()),
-            None => "the fleet's nominal vehicle is MODEL.md §9 (--vehicle)".into(),
+        .with_context(|| match (&args.vehicle, &setup.profile) {
+            (Some(p), _) => format!("the fleet's nominal vehicle is {}", p.display()),
+            (None, Some(p)) => format!(
+                "the fleet's nominal vehicle is profile {}'s chassis ({})",
+                p.name, p.vehicle_source
+            ),
+            (None, None) => "the fleet's nominal vehicle is MODEL.md §9 (--vehicle)".into(),
         })?;
     let cfg = match &args.config {
         Some(p) => ObserverConfig::load(p)?,
@@ -592,7 +714,7 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
     let ks: Vec<usize> = (0..args.vehicles).collect();
     if args.logs_only {
         let done = par_map(&ks, threads, |&k| {
-            let r = vehicle_log(k, &args, &nominal, &dir);
+            let r = vehicle_log(k, &args, &setup, &dir);
             if r.is_ok() {
                 eprintln!("vehicle {k:>3}: log written");
             }
@@ -612,7 +734,7 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let results = par_map(&ks, threads, |&k| {
-        let r = one_vehicle(k, &args, &nominal, &dir, &table, &cfg);
+        let r = one_vehicle(k, &args, &setup, &dir, &table, &cfg);
         if let Ok(v) = &r {
             eprintln!(
                 "vehicle {:>3}: c = {:.3} mm -> {} [{}] alerts: clearance {} shimmy {} ({} events used, {:.0} s)",
@@ -738,7 +860,7 @@ mod tests {
 
     /// Vehicle 0's log as `run` writes it: the nominal vehicle read from `args`, then the log.
     fn log0(args: &FleetArgs, dir: &Path) -> anyhow::Result<(PathBuf, EvalTruth)> {
-        vehicle_log(0, args, &Nominal::load(args)?, dir)
+        vehicle_log(0, args, &Setup::load(args)?, dir)
     }
 
     /// Vehicle 0 of seed 4242 as drawn (in `base/a`) and with `extra` options (in `base/b`):

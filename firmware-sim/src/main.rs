@@ -11,14 +11,19 @@ use firmware_sim::plant::ModelPlant;
 use firmware_sim::{FirmwareSim, RunInfo, Scenario};
 
 /// Simulated vehicle ECUs: drive the shimmy model with a known steering-joint clearance and put
-/// the reference bus on a CAN interface or into a candump log.
+/// a vehicle's bus on a CAN interface or into a candump log.
 ///
 /// firmware-sim reads a scenario (TOML, see config/scenarios/), runs the 5-DOF shimmy model of
 /// MODEL.md as the plant through the scenario's drive cycle (cruise, braking events,
-/// re-acceleration), and emulates the ECUs of our reference bus (dbc/shimmy_reference.dbc,
-/// embedded in the binary): steering angle sensor at 100 Hz with 0.1° resolution, brake pressure
-/// and switch at 50 Hz, wheel speeds at 50 Hz, vehicle speed and longitudinal acceleration at
-/// 50 Hz, with rolling counters, checksums, sensor noise, send jitter and optional faults.
+/// re-acceleration), and emulates the ECUs of a bus: by default our reference bus
+/// (dbc/shimmy_reference.dbc, embedded in the binary): steering angle sensor at 100 Hz with 0.1°
+/// resolution, brake pressure and switch at 50 Hz, wheel speeds at 50 Hz, vehicle speed and
+/// longitudinal acceleration at 50 Hz, with rolling counters, checksums, sensor noise, send
+/// jitter and optional faults.
+///
+/// With --profile NAME, the bus of a vehicle profile (config/vehicles/NAME: its DBC and
+/// bus.toml) as on the real car: its messages, periods, checksums, counters, sign conventions and
+/// background traffic; the profile's chassis is the vehicle unless the scenario names one.
 ///
 /// Output (one of):
 ///   --out LOG        a candump -L log, written as fast as the model runs ("-" = stdout);
@@ -65,6 +70,7 @@ use firmware_sim::{FirmwareSim, RunInfo, Scenario};
 ///
 /// Examples:
 ///   firmware-sim --scenario config/scenarios/worn_0p2mm.toml --out worn.log
+///   firmware-sim --scenario config/scenarios/worn_0p2mm.toml --profile toyota_rav4 --out rav4.log
 ///   firmware-sim --scenario config/scenarios/city.toml --seed 7 --out city.log --truth city.json
 ///   sudo modprobe vcan && sudo ip link add dev vcan0 type vcan && sudo ip link set up vcan0
 ///   firmware-sim --scenario config/scenarios/highway.toml --iface vcan0 --speed 10
@@ -100,7 +106,13 @@ struct Cli {
     #[arg(long, value_name = "N", default_value_t = 1.0, requires = "iface")]
     speed: f64,
 
-    /// Use this DBC instead of the embedded reference DBC (it must define the same messages).
+    /// Emulate this vehicle profile's bus (name, alias or folder; see config/vehicles/): its
+    /// DBC and bus.toml, its chassis as the vehicle when the scenario names none.
+    #[arg(long, value_name = "NAME")]
+    profile: Option<String>,
+
+    /// Use this DBC instead of the embedded reference DBC, or of the profile's (it must define
+    /// the same messages and signals).
     #[arg(long, value_name = "FILE")]
     dbc: Option<PathBuf>,
 
@@ -144,17 +156,40 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     if let Some(s) = cli.seed {
         scenario.seed = s;
     }
-    let dbc_text = match &cli.dbc {
-        Some(p) => shimmy_dbc_text(p)?,
-        None => firmware_sim::bus::REFERENCE_DBC.to_string(),
+    let profile = match &cli.profile {
+        Some(name) => Some(shimmy::profile::Profile::load(name)?),
+        None => None,
+    };
+    let (db, bus) = match &profile {
+        Some(p) => firmware_sim::bus::profile_bus(p, cli.dbc.as_deref())?,
+        None => {
+            let text = match &cli.dbc {
+                Some(p) => shimmy_dbc_text(p)?,
+                None => firmware_sim::bus::REFERENCE_DBC.to_string(),
+            };
+            (
+                shimmy::dbc::Database::parse(&text).0,
+                firmware_sim::bus::reference_bus()?,
+            )
+        }
     };
     let vehicle = scenario.vehicle_path(&cli.scenario);
-    let plant = ModelPlant::new(&scenario, vehicle.as_deref())?;
+    let (plant, vehicle_file) = match (&vehicle, &profile) {
+        (None, Some(p)) => (
+            ModelPlant::with_params(&scenario, p.vehicle.clone())?,
+            Some(p.vehicle_source.clone()),
+        ),
+        _ => (
+            ModelPlant::new(&scenario, vehicle.as_deref())?,
+            vehicle.as_ref().map(|p| p.display().to_string()),
+        ),
+    };
     let info = RunInfo {
         scenario_file: Some(cli.scenario.display().to_string()),
-        vehicle_file: vehicle.as_ref().map(|p| p.display().to_string()),
+        vehicle_file,
+        profile: profile.as_ref().map(|p| p.name.clone()),
     };
-    let mut sim = FirmwareSim::new(&scenario, plant, &dbc_text, info)?;
+    let mut sim = FirmwareSim::with_bus(&scenario, plant, db, &bus, info)?;
     let truth_path = cli
         .truth
         .clone()
@@ -184,6 +219,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     std::fs::write(&truth_path, truth.to_json() + "\n")
         .with_context(|| format!("cannot write ground truth {}", truth_path.display()))?;
     if !cli.quiet {
+        if let Some(p) = &profile {
+            eprintln!("firmware-sim: bus of vehicle profile {}", p.label());
+        }
         eprintln!(
             "firmware-sim: {} ({}, seed {}): {:.1} s simulated in {:.2} s ({:.1}x real time), {:.2} km, {} frames",
             scenario.name,

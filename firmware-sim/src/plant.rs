@@ -50,6 +50,28 @@ pub trait Plant {
     fn accel_mps2(&self) -> f64;
     /// Steering-wheel (pinion) angle δ_sw (rad), MODEL.md §8.
     fn steering_wheel_rad(&self) -> f64;
+    /// Column torque T_c (N·m) of MODEL.md §15: the torque the column puts on the rim (the
+    /// torsion bar reads −T_c as the driver's torque). 0 for a plant without the column: the
+    /// 5-DOF model lumps the rim and the driver's hands into the rack restraint k_g and has no
+    /// torsion bar to measure. Must not allocate.
+    fn column_torque_nm(&self) -> f64 {
+        0.0
+    }
+    /// Overall steering ratio i_s (steering-wheel angle per road-wheel angle, MODEL.md §8), for
+    /// the kinematic yaw rate. Default: MODEL.md §9's vehicle.
+    fn steering_ratio(&self) -> f64 {
+        steering_ratio(&shimmy::model::VehicleParams::default())
+    }
+    /// Wheelbase L (m). Default: MODEL.md §9's vehicle.
+    fn wheelbase_m(&self) -> f64 {
+        shimmy::model::VehicleParams::default().vehicle.wheelbase_m
+    }
+}
+
+/// MODEL.md §8's overall steering ratio i_s = l·sin α / r_p of a vehicle.
+pub fn steering_ratio(p: &shimmy::model::VehicleParams) -> f64 {
+    let s = &p.steering;
+    s.arm_length_m * s.trapezoid_angle_deg.to_radians().sin() / s.rack_travel_per_pinion_rad_m
 }
 
 /// The driver's lane-keeping steering input at the steering wheel: white noise through two
@@ -192,6 +214,8 @@ pub struct ModelPlant {
     single: bool,
     v_prev: f64,
     accel: f64,
+    steering_ratio: f64,
+    wheelbase_m: f64,
 }
 
 impl ModelPlant {
@@ -202,12 +226,23 @@ impl ModelPlant {
         vehicle: Option<&std::path::Path>,
     ) -> anyhow::Result<ModelPlant> {
         use anyhow::Context;
-        use shimmy::model::{JointMode, Scenario as ModelScenario, Simulator, VehicleParams};
-        let mut p = match vehicle {
+        use shimmy::model::VehicleParams;
+        let p = match vehicle {
             Some(path) => VehicleParams::from_toml_file(path)
                 .with_context(|| format!("vehicle file {}", path.display()))?,
             None => VehicleParams::default(),
         };
+        ModelPlant::with_params(sc, p)
+    }
+
+    /// Build the model for `sc` with the vehicle parameters `p` (e.g. a vehicle profile's
+    /// chassis) and the scenario's excitation (§7) written into them.
+    pub fn with_params(
+        sc: &crate::scenario::Scenario,
+        mut p: shimmy::model::VehicleParams,
+    ) -> anyhow::Result<ModelPlant> {
+        use anyhow::Context;
+        use shimmy::model::{JointMode, Scenario as ModelScenario, Simulator};
         p.excitation.unbalance_kgm = sc.excitation.unbalance_kgm;
         p.excitation.noise_std_nm = sc.excitation.road_noise_nm;
         sc.validate()?;
@@ -237,6 +272,8 @@ impl ModelPlant {
             single,
             v_prev: v,
             accel: 0.0,
+            steering_ratio: steering_ratio(&p),
+            wheelbase_m: p.vehicle.wheelbase_m,
         })
     }
 
@@ -284,5 +321,22 @@ impl Plant for ModelPlant {
     }
     fn steering_wheel_rad(&self) -> f64 {
         self.sim.model().delta_sw(self.sim.state())
+    }
+    /// T_c = k_c·(X/r_p − δ_sw) + c_tb·(X'/r_p − δ_sw') (MODEL.md §15) from the state, when the
+    /// vehicle's column is enabled; 0 otherwise.
+    fn column_torque_nm(&self) -> f64 {
+        use shimmy::model::rhs::ix;
+        let m = self.sim.model();
+        if !m.column {
+            return 0.0;
+        }
+        let y = self.sim.state();
+        m.k_c * (y[ix::X] / m.r_p - y[ix::SW]) + m.c_tb * (y[ix::XD] / m.r_p - y[ix::SWD])
+    }
+    fn steering_ratio(&self) -> f64 {
+        self.steering_ratio
+    }
+    fn wheelbase_m(&self) -> f64 {
+        self.wheelbase_m
     }
 }

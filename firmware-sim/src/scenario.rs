@@ -283,7 +283,7 @@ impl Default for Driver {
     }
 }
 
-/// Sensor and ECU imperfections on the reference bus.
+/// Sensor and ECU imperfections of the emulated bus.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Sensors {
@@ -302,11 +302,18 @@ pub struct Sensors {
     /// Tyre rolling-radius tolerance: each wheel's scale error is drawn uniformly in ±this (%).
     #[serde(default = "default_radius_tol")]
     pub wheel_radius_tolerance_pct: f64,
-    /// White noise on the longitudinal acceleration (m/s² RMS).
+    /// White noise on the longitudinal and lateral accelerations (m/s² RMS).
     #[serde(default = "default_accel_noise")]
     pub accel_noise_mps2: f64,
+    /// White noise on the yaw rate (deg/s RMS), on buses that carry one.
+    #[serde(default = "default_yaw_noise")]
+    pub yaw_rate_noise_deg_s: f64,
+    /// White noise on the steering (torsion-bar) torque (N·m RMS), on buses that carry one.
+    #[serde(default = "default_torque_noise")]
+    pub steer_torque_noise_nm: f64,
     /// Send-period jitter: each frame leaves at its nominal time plus a Gaussian offset with this
-    /// standard deviation (ms), clipped to a quarter period.
+    /// standard deviation (ms), clipped to a quarter period. A bus description's per-message
+    /// `jitter_ms` replaces it for that message.
     #[serde(default = "default_jitter_ms")]
     pub jitter_ms: f64,
 }
@@ -332,6 +339,12 @@ fn default_accel_noise() -> f64 {
 fn default_jitter_ms() -> f64 {
     0.2
 }
+fn default_yaw_noise() -> f64 {
+    0.05
+}
+fn default_torque_noise() -> f64 {
+    0.02
+}
 
 impl Default for Sensors {
     fn default() -> Self {
@@ -342,6 +355,8 @@ impl Default for Sensors {
             wheel_speed_noise_kmh: default_wheel_noise(),
             wheel_radius_tolerance_pct: default_radius_tol(),
             accel_noise_mps2: default_accel_noise(),
+            yaw_rate_noise_deg_s: default_yaw_noise(),
+            steer_torque_noise_nm: default_torque_noise(),
             jitter_ms: default_jitter_ms(),
         }
     }
@@ -369,7 +384,7 @@ pub struct Faults {
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct StuckFault {
-    /// Message name in the reference DBC.
+    /// Message name on the emulated bus (its DBC name, or a raw message's label).
     pub message: String,
     pub start_s: f64,
     pub duration_s: f64,
@@ -378,7 +393,7 @@ pub struct StuckFault {
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct BusOffFault {
-    /// Message name in the reference DBC; absent: the whole bus.
+    /// Message name on the emulated bus; absent: the whole bus.
     #[serde(default)]
     pub message: Option<String>,
     pub start_s: f64,
@@ -589,6 +604,18 @@ impl Scenario {
             5.0,
         )?;
         range("sensors.accel_noise_mps2", s.accel_noise_mps2, 0.0, 10.0)?;
+        range(
+            "sensors.yaw_rate_noise_deg_s",
+            s.yaw_rate_noise_deg_s,
+            0.0,
+            10.0,
+        )?;
+        range(
+            "sensors.steer_torque_noise_nm",
+            s.steer_torque_noise_nm,
+            0.0,
+            10.0,
+        )?;
         range("sensors.jitter_ms", s.jitter_ms, 0.0, 5.0)?;
         let f = &self.faults;
         range("faults.drop_probability", f.drop_probability, 0.0, 1.0)?;

@@ -1,7 +1,13 @@
 //! One firmware-sim run: the drive cycle drives the plant step by step, the driver's lane keeping
-//! is added at the steering wheel, the ECUs of the reference bus sample the result, and frames
-//! come out in time order, as an [`Iterator`] and as a [`CanSource`]. When the run ends,
-//! [`FirmwareSim::ground_truth`] describes what was really simulated.
+//! is added at the steering wheel, the ECUs of the emulated bus (the reference bus, or a vehicle
+//! profile's, [`crate::bus`]) sample the result, and frames come out in time order, as an
+//! [`Iterator`] and as a [`CanSource`]. When the run ends, [`FirmwareSim::ground_truth`]
+//! describes what was really simulated.
+//!
+//! The yaw rate and lateral acceleration some buses carry are kinematic (single track, no
+//! slip): r = v·δ_sw/(i_s·L), a_y = v·r, from the total steering-wheel angle (model plus lane
+//! keeping). MODEL.md has no lateral vehicle dynamics (§14); these signals only make the bus
+//! look like the car's, the monitor does not use them.
 //!
 //! Deterministic given the scenario seed: every random choice draws from a ChaCha8 stream
 //! seeded with it (one stream per purpose, so enabling a fault leaves the sensor noise alone).
@@ -15,11 +21,13 @@ use rand_chacha::ChaCha8Rng;
 use shimmy::source::{CanSource, SourceStats};
 use shimmy::wire::Frame;
 
-use crate::bus::{ReferenceBus, Sample, MAX_BATCH};
+use crate::bus::{Bus, Sample, MAX_BATCH};
 use crate::drive::{DriveCmd, Driver};
 use crate::plant::{LaneKeeping, Plant};
 use crate::scenario::{ClearanceMode, PhaseChange, Scenario, Segment};
 use crate::truth::{self, GroundTruth};
+use shimmy::dbc::Database;
+use shimmy::profile::bus::BusSpec;
 
 /// Rate of the δ_sw trace kept for the ground truth (Hz), MODEL.md §10's output rate.
 pub const TRACE_HZ: f64 = 1000.0;
@@ -38,6 +46,8 @@ pub const TAIL_S: f64 = 0.5;
 pub struct RunInfo {
     pub scenario_file: Option<String>,
     pub vehicle_file: Option<String>,
+    /// The vehicle profile whose bus is emulated (`None`: the reference bus or a custom one).
+    pub profile: Option<String>,
 }
 
 /// Clearances and contact of one braking event, accumulated while it decelerates.
@@ -62,7 +72,9 @@ pub struct FirmwareSim<P: Plant> {
     lane: LaneKeeping,
     lane_rng: ChaCha8Rng,
     lane_rad: f64,
-    bus: ReferenceBus,
+    bus: Bus,
+    /// Kinematic yaw gain 1/(i_s·L) (1/m), see the module docs.
+    yaw_gain_per_m: f64,
     batch: heapless::Vec<Frame, MAX_BATCH>,
     batch_pos: usize,
     h_s: f64,
@@ -96,23 +108,44 @@ pub struct FirmwareSim<P: Plant> {
 }
 
 impl<P: Plant> FirmwareSim<P> {
-    /// Start a run of `scenario` on `plant`, with the reference bus built from `dbc_text`.
+    /// Start a run of `scenario` on `plant`, with the reference bus packed with the DBC in
+    /// `dbc_text` (normally [`crate::bus::REFERENCE_DBC`]).
     pub fn new(
         scenario: &Scenario,
         plant: P,
         dbc_text: &str,
         info: RunInfo,
     ) -> anyhow::Result<FirmwareSim<P>> {
+        let (db, _report) = Database::parse(dbc_text);
+        FirmwareSim::with_bus(scenario, plant, db, &crate::bus::reference_bus()?, info)
+    }
+
+    /// Start a run of `scenario` on `plant`, emulating the bus `bus` (a vehicle profile's
+    /// `bus.toml`) packed with `db`.
+    pub fn with_bus(
+        scenario: &Scenario,
+        plant: P,
+        db: Database,
+        bus: &BusSpec,
+        info: RunInfo,
+    ) -> anyhow::Result<FirmwareSim<P>> {
         scenario.validate()?;
         let h = scenario.step_s;
         let t0_ns = (scenario.start_unix_s * 1e9).round() as i64;
-        let bus = ReferenceBus::new(
-            dbc_text,
+        let bus = Bus::new(
+            db,
+            bus,
             &scenario.sensors,
             &scenario.faults,
             scenario.seed,
             t0_ns,
         )?;
+        let ratio_l = plant.steering_ratio() * plant.wheelbase_m();
+        let yaw_gain_per_m = if ratio_l.is_finite() && ratio_l > 0.0 {
+            1.0 / ratio_l
+        } else {
+            0.0
+        };
         let trace_every = scenario.trace_steps();
         let chunk = scenario.control_steps();
         let mut lane_rng = ChaCha8Rng::seed_from_u64(scenario.seed);
@@ -148,6 +181,7 @@ impl<P: Plant> FirmwareSim<P> {
             lane_rng,
             lane_rad: 0.0,
             bus,
+            yaw_gain_per_m,
             batch: heapless::Vec::new(),
             batch_pos: 0,
             h_s: h,
@@ -187,11 +221,11 @@ impl<P: Plant> FirmwareSim<P> {
     }
 
     /// The emulated bus (DBC, per-message counters, recorded values).
-    pub fn bus(&self) -> &ReferenceBus {
+    pub fn bus(&self) -> &Bus {
         &self.bus
     }
 
-    pub fn bus_mut(&mut self) -> &mut ReferenceBus {
+    pub fn bus_mut(&mut self) -> &mut Bus {
         &mut self.bus
     }
 
@@ -213,13 +247,19 @@ impl<P: Plant> FirmwareSim<P> {
     }
 
     fn sample(&self) -> Sample {
+        let steer_rad = self.plant.steering_wheel_rad() + self.lane_rad;
+        let speed_mps = self.plant.speed_mps();
+        let yaw_rate_rps = speed_mps * steer_rad * self.yaw_gain_per_m;
         Sample {
             t_s: self.plant.t_s(),
-            steer_rad: self.plant.steering_wheel_rad() + self.lane_rad,
-            speed_mps: self.plant.speed_mps(),
+            steer_rad,
+            speed_mps,
             accel_mps2: self.plant.accel_mps2(),
             pedal_decel_mps2: self.last_cmd.pedal_decel_mps2,
             brake_pressed: self.last_cmd.brake_pressed,
+            yaw_rate_rps,
+            lat_accel_mps2: speed_mps * yaw_rate_rps,
+            steer_torque_nm: -self.plant.column_torque_nm(),
         }
     }
 
@@ -403,6 +443,7 @@ impl<P: Plant> FirmwareSim<P> {
                 file: self.info.scenario_file.clone(),
                 seed: self.scenario.seed,
                 vehicle_file: self.info.vehicle_file.clone(),
+                profile: self.info.profile.clone(),
                 integrator: self.scenario.integrator,
                 control_period_s: self.scenario.control_steps() as f64 * self.scenario.step_s,
                 step_s: self.scenario.step_s,
@@ -427,6 +468,11 @@ impl<P: Plant> FirmwareSim<P> {
             events,
             sensors: truth::SensorTruth {
                 sas_offset_deg: self.bus.sas_offset_deg(),
+                steer_sensor: self.bus.steer_sensor().map(|s| truth::SteerSensorTruth {
+                    message: s.message.clone(),
+                    rate_hz: s.rate_hz,
+                    step_deg: s.step_deg,
+                }),
             },
             frames_sent: stats.iter().map(|s| s.sent).sum(),
             messages: stats,

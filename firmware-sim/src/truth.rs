@@ -52,6 +52,9 @@ pub struct ScenarioId {
     pub file: Option<String>,
     pub seed: u64,
     pub vehicle_file: Option<String>,
+    /// The vehicle profile whose bus was emulated (absent: the reference bus or a custom DBC).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub profile: Option<String>,
     /// The model's integration scheme and step (s), and the control period (s, driver demand
     /// and ECU sampling), which the log's exact bytes depend on.
     pub integrator: shimmy::model::Integrator,
@@ -115,6 +118,17 @@ pub struct EventTruth {
 pub struct SensorTruth {
     /// Zero-point offset of the steering angle sensor (deg), a fraction of one LSB.
     pub sas_offset_deg: f64,
+    /// The steering angle sensor the bus carries (its message, rate and step).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub steer_sensor: Option<SteerSensorTruth>,
+}
+
+/// The emulated steering angle sensor.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct SteerSensorTruth {
+    pub message: String,
+    pub rate_hz: f64,
+    pub step_deg: f64,
 }
 
 /// The MODEL.md §11 steering-wheel amplitude (deg) of one event from δ_sw (rad) sampled at

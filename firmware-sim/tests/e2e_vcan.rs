@@ -24,7 +24,7 @@ use std::path::PathBuf;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use firmware_sim::bus::{REFERENCE_DBC, REFERENCE_MESSAGES};
+use firmware_sim::bus::{reference_bus, REFERENCE_DBC};
 use firmware_sim::plant::ModelPlant;
 use firmware_sim::{FirmwareSim, RunInfo, Scenario};
 use shimmy::dbc::Database;
@@ -95,11 +95,13 @@ fn firmware_sim_on_vcan_is_read_and_decoded_live() {
     std::fs::write(&sc_path, SCENARIO).unwrap();
 
     let db = Database::parse(REFERENCE_DBC).0;
-    let ids: Vec<(u32, &str)> = REFERENCE_MESSAGES
+    let bus = reference_bus().unwrap();
+    let ids: Vec<(u32, &str)> = bus
+        .messages
         .iter()
         .map(|m| {
-            let i = db.message_by_name(m.message).unwrap();
-            (db.messages()[i].id, m.message)
+            let i = db.message_by_name(&m.name).unwrap();
+            (db.messages()[i].id, m.name.as_str())
         })
         .collect();
     let filter: Vec<FilterId> = ids.iter().map(|&(id, _)| FilterId::standard(id)).collect();

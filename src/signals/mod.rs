@@ -5,7 +5,8 @@
 //!
 //! * [`mapping`]: the per-vehicle TOML file naming DBC messages/signals, compositions, units and
 //!   per-message protection.
-//! * [`checksum`]: the checksum byte functions (Toyota, VW MQB, our reference bus).
+//! * [`checksum`]: the checksum functions (Toyota, VW MQB, Honda, Hyundai / Kia, our reference
+//!   bus).
 //! * [`Mapper`]: resolves a mapping against a [`Database`] once (every missing message or signal
 //!   is a clear error at start-up), then interprets frames without allocating.
 //!
@@ -333,7 +334,7 @@ impl<'a> Resolver<'a> {
         if let Some(kind) = rules.checksum {
             if !kind.supports(msg.id) {
                 bail!(
-                    "{mkey}.checksum: {kind:?} has no data-ID bytes for `{name}` (0x{:X})",
+                    "{mkey}.checksum: {kind:?} is not known for `{name}` (0x{:X}): no data-ID bytes or layout",
                     msg.id
                 );
             }
