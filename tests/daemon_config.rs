@@ -28,7 +28,9 @@ fn shipped_default_is_valid_and_read_only() {
         (50.0, 60.0)
     );
     assert_eq!(c.alerts.clearance_mm, 0.1);
-    assert!(c.input.dbc.ends_with("shimmy_reference.dbc") && c.input.dbc.is_file());
+    let dbc = c.input.dbc.as_ref().expect("the profile's DBC");
+    assert!(dbc.ends_with("shimmy_reference.dbc") && dbc.is_file());
+    assert_eq!(c.profile.as_ref().unwrap().name, "shimmy_reference");
 }
 
 fn broken(from: &str, to: &str) -> String {
@@ -92,8 +94,18 @@ fn broken_configs_name_the_key_and_the_problem() {
             &["alerts.shimmy_clear_deg", "flap"],
         ),
         (
-            "mapping = \"vehicles/shimmy_reference/mapping.toml\"",
-            "mapping = \"vehicles/nope.toml\"",
+            "profile = \"shimmy_reference\"",
+            "profile = \"nope\"",
+            &["input.profile", "no vehicle profile `nope`", "toyota_rav4"],
+        ),
+        (
+            "profile = \"shimmy_reference\"",
+            "dbc = \"../dbc/shimmy_reference.dbc\"",
+            &["input.dbc and input.mapping", "both"],
+        ),
+        (
+            "profile = \"shimmy_reference\"",
+            "dbc = \"../dbc/shimmy_reference.dbc\"\nmapping = \"vehicles/nope.toml\"",
             &["input.mapping", "nope.toml", "does not exist"],
         ),
         (

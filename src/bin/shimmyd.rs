@@ -24,6 +24,10 @@ struct Cli {
     /// The configuration file (see config/shimmyd.toml).
     #[arg(long, value_name = "FILE", required_unless_present = "journal_stress")]
     config: Option<PathBuf>,
+    /// The car, overriding the configuration's (`input.profile`, `input.dbc`, `input.mapping`,
+    /// `vehicle.table`): a vehicle profile's name (config/vehicles/<NAME>) or folder.
+    #[arg(long, value_name = "NAME")]
+    profile: Option<String>,
     /// Replay these logs instead of reading the live interfaces, then exit.
     #[arg(long, value_name = "LOG", num_args = 1..)]
     replay: Vec<PathBuf>,
@@ -73,11 +77,13 @@ fn main() {
     } else {
         let config = cli.config.expect("clap requires --config");
         if cli.check {
-            Config::load(&config).map(|_| eprintln!("shimmyd: {} is valid", config.display()))
+            Config::load_with_profile(&config, cli.profile.as_deref())
+                .map(|_| eprintln!("shimmyd: {} is valid", config.display()))
         } else {
             run(
                 Options {
                     config,
+                    profile: cli.profile,
                     replay: cli.replay,
                     fast: cli.fast,
                     state_dir: cli.state_dir,

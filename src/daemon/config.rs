@@ -35,6 +35,9 @@ pub struct Config {
     pub observer: ObserverSection,
     #[serde(default)]
     pub mqtt: MqttSection,
+    /// The profile `input.profile` names, loaded (not part of the file).
+    #[serde(skip)]
+    pub profile: Option<crate::profile::Profile>,
 }
 
 /// `[input]`: where frames come from and how to read them.
@@ -50,10 +53,19 @@ pub struct Input {
     /// Replay as fast as possible instead of at recorded timing.
     #[serde(default)]
     pub fast: bool,
-    /// The DBC describing the bus.
-    pub dbc: PathBuf,
-    /// The signal mapping (a profile's mapping.toml, config/vehicles/*/mapping.toml).
-    pub mapping: PathBuf,
+    /// The vehicle profile (config/vehicles/<name>, or a path to one): the car's DBC, mapping,
+    /// chassis and response table. Looked up beside this file (`vehicles/<name>`) and on the
+    /// profile search path ([`crate::profile`]). `dbc`, `mapping` and `vehicle.table` override
+    /// the profile's.
+    #[serde(default)]
+    pub profile: Option<String>,
+    /// The DBC describing the bus (required without a profile).
+    #[serde(default)]
+    pub dbc: Option<PathBuf>,
+    /// The signal mapping (required without a profile; a profile's mapping.toml, e.g.
+    /// config/vehicles/*/mapping.toml).
+    #[serde(default)]
+    pub mapping: Option<PathBuf>,
 }
 
 /// `[vehicle]`.
@@ -272,18 +284,68 @@ fn probability(key: &str, p: f64) -> anyhow::Result<()> {
 impl Config {
     /// Parses `text`; relative paths are resolved against `base` (the file's directory).
     pub fn from_toml_str(text: &str, base: &Path) -> anyhow::Result<Config> {
+        Config::from_toml_str_with(text, base, None)
+    }
+
+    /// [`Self::from_toml_str`] with the car replaced by `profile` (the command line's
+    /// `--profile`): the file's `input.profile`, `input.dbc`, `input.mapping` and
+    /// `vehicle.table` give way to the profile's.
+    pub fn from_toml_str_with(
+        text: &str,
+        base: &Path,
+        profile: Option<&str>,
+    ) -> anyhow::Result<Config> {
         let mut cfg: Config = toml::from_str(text).map_err(|e| anyhow::anyhow!("{e}"))?;
         cfg.resolve(base);
+        if let Some(name) = profile {
+            cfg.input.profile = Some(name.to_string());
+            cfg.input.dbc = None;
+            cfg.input.mapping = None;
+            cfg.vehicle.table = None;
+        }
+        cfg.apply_profile(base)?;
         cfg.validate()?;
         Ok(cfg)
     }
 
+    /// Loads `input.profile` and fills in what the file leaves to it: the DBC, the mapping and
+    /// the response table.
+    fn apply_profile(&mut self, base: &Path) -> anyhow::Result<()> {
+        let Some(name) = &self.input.profile else {
+            return Ok(());
+        };
+        let dir =
+            crate::profile::find_in(name, &[base.join("vehicles")]).context("input.profile")?;
+        let p = crate::profile::Profile::load_dir(&dir).context("input.profile")?;
+        self.input.dbc.get_or_insert_with(|| p.dbc_path.clone());
+        self.input
+            .mapping
+            .get_or_insert_with(|| p.mapping_path.clone());
+        if self.vehicle.table.is_none() {
+            // A profile whose table is not built yet still finds events; the daemon says so.
+            self.vehicle.table = p.table_path.clone().filter(|t| t.is_file());
+        }
+        self.profile = Some(p);
+        Ok(())
+    }
+
+    /// The DBC and mapping in use (the profile's unless overridden); `None` when neither a
+    /// profile nor both files are configured (the daemon then identifies the car from its bus).
+    pub fn bus_files(&self) -> Option<(&Path, &Path)> {
+        Some((self.input.dbc.as_deref()?, self.input.mapping.as_deref()?))
+    }
+
     /// Reads, parses and checks a config file; errors name the file, the key and the problem.
     pub fn load(path: &Path) -> anyhow::Result<Config> {
+        Config::load_with_profile(path, None)
+    }
+
+    /// [`Self::load`] with the car replaced by `profile` ([`Self::from_toml_str_with`]).
+    pub fn load_with_profile(path: &Path, profile: Option<&str>) -> anyhow::Result<Config> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read config {}", path.display()))?;
         let base = path.parent().unwrap_or(Path::new("."));
-        Config::from_toml_str(&text, base)
+        Config::from_toml_str_with(&text, base, profile)
             .with_context(|| format!("invalid config {}", path.display()))
     }
 
@@ -293,8 +355,12 @@ impl Config {
                 *p = base.join(&*p);
             }
         };
-        fix(&mut self.input.dbc);
-        fix(&mut self.input.mapping);
+        if let Some(p) = self.input.dbc.as_mut() {
+            fix(p);
+        }
+        if let Some(p) = self.input.mapping.as_mut() {
+            fix(p);
+        }
         self.input.replay.iter_mut().for_each(fix);
         if let Some(p) = self.vehicle.params.as_mut() {
             fix(p);
@@ -311,15 +377,15 @@ impl Config {
 
     /// The checks serde cannot express.
     pub fn validate(&self) -> anyhow::Result<()> {
+        if self.input.dbc.is_some() != self.input.mapping.is_some() {
+            bail!(
+                "input.dbc and input.mapping: give both (or input.profile, whose files fill in \
+                 what is not given)"
+            );
+        }
         for (key, p) in [
             ("input.dbc", &self.input.dbc),
             ("input.mapping", &self.input.mapping),
-        ] {
-            if !p.is_file() {
-                bail!("{key}: file {} does not exist", p.display());
-            }
-        }
-        for (key, p) in [
             ("vehicle.params", &self.vehicle.params),
             ("vehicle.table", &self.vehicle.table),
         ] {

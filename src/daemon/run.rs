@@ -40,6 +40,8 @@ use crate::wire::Frame;
 #[derive(Clone, Debug, Default)]
 pub struct Options {
     pub config: PathBuf,
+    /// Overrides the configuration's car (`input.profile`, `--profile`).
+    pub profile: Option<String>,
     pub replay: Vec<PathBuf>,
     pub fast: bool,
     pub state_dir: Option<PathBuf>,
@@ -477,27 +479,43 @@ impl Daemon {
 
 /// Runs the daemon until the input ends (replay) or SIGTERM/SIGINT.
 pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
-    let mut cfg = Config::load(&opts.config)?;
+    let mut cfg = Config::load_with_profile(&opts.config, opts.profile.as_deref())?;
     if let Some(j) = &opts.journal_dir {
         cfg.outputs.journal_dir = j.clone();
     }
-    let (db, report) = Database::load(&cfg.input.dbc)
-        .with_context(|| format!("input.dbc: cannot load {}", cfg.input.dbc.display()))?;
+    if let Some(p) = &cfg.profile {
+        log(format_args!("vehicle profile: {}", p.label()));
+        if let Some(t) = p.table_path.as_ref().filter(|t| !t.is_file()) {
+            log(format_args!(
+                "profile {} has no response table yet ({} missing; build it with `shimmy \
+                 calibrate --profile {}`): no clearance estimate",
+                p.name,
+                t.display(),
+                p.name
+            ));
+        }
+    }
+    let Some((dbc_path, mapping_path)) = cfg.bus_files() else {
+        bail!("input: no profile and no dbc/mapping configured (set input.profile, e.g. \"toyota_rav4\")");
+    };
+    let (dbc_path, mapping_path) = (dbc_path.to_path_buf(), mapping_path.to_path_buf());
+    let (db, report) = Database::load(&dbc_path)
+        .with_context(|| format!("input.dbc: cannot load {}", dbc_path.display()))?;
     if !report.skipped.is_empty() {
         log(format_args!(
             "{}: {} DBC item(s) skipped (first: line {} {}: {})",
-            cfg.input.dbc.display(),
+            dbc_path.display(),
             report.skipped.len(),
             report.skipped[0].line,
             report.skipped[0].item,
             report.skipped[0].reason
         ));
     }
-    let mapping = MappingConfig::from_toml_file(&cfg.input.mapping).context("input.mapping")?;
+    let mapping = MappingConfig::from_toml_file(&mapping_path).context("input.mapping")?;
     let mapper = Mapper::new(&db, &mapping).with_context(|| {
         format!(
             "input.mapping: {} does not fit the DBC",
-            cfg.input.mapping.display()
+            mapping_path.display()
         )
     })?;
     for w in mapper.warnings() {

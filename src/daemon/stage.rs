@@ -12,10 +12,22 @@ use crate::observer::table::ResponseTable;
 
 pub fn for_config(cfg: &Config) -> anyhow::Result<Box<dyn EventStage>> {
     let table = match &cfg.vehicle.table {
-        Some(p) => Some(
-            ResponseTable::load(p)
-                .with_context(|| format!("vehicle.table: cannot load {}", p.display()))?,
-        ),
+        Some(p) => {
+            let t = ResponseTable::load(p)
+                .with_context(|| format!("vehicle.table: cannot load {}", p.display()))?;
+            // A profile's table must fit the profile's chassis and sensor; a custom setup's
+            // the vehicle parameters given.
+            if let Some(profile) = &cfg.profile {
+                profile.check_table(&t).with_context(|| {
+                    format!("vehicle.table {} for profile {}", p.display(), profile.name)
+                })?;
+            } else if let Some(params) = &cfg.vehicle.params {
+                let v = crate::cli::estimate::load_vehicle(Some(params))?;
+                t.check_vehicle(&crate::observer::table::vehicle_hash(&v)?)
+                    .with_context(|| format!("vehicle.table {}", p.display()))?;
+            }
+            Some(t)
+        }
         None => None,
     };
     Ok(Box::new(ObserverStage::new(cfg, table)?))

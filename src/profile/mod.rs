@@ -130,7 +130,7 @@ pub struct TorqueSensor {
 }
 
 /// A profile resolved from its folder: every path checked, the mapping and chassis loaded.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Profile {
     /// The folder's name.
     pub name: String,
@@ -188,6 +188,11 @@ pub fn load_all() -> Vec<anyhow::Result<Profile>> {
 
 /// Finds a profile folder by name, alias, folder path or `profile.toml` path.
 pub fn find(name: &str) -> anyhow::Result<PathBuf> {
+    find_in(name, &[])
+}
+
+/// [`find`], looking in `first` (directories holding profile folders) before the search path.
+pub fn find_in(name: &str, first: &[PathBuf]) -> anyhow::Result<PathBuf> {
     let p = Path::new(name);
     if p.file_name().is_some_and(|f| f == "profile.toml") && p.is_file() {
         return Ok(p.parent().unwrap_or(Path::new(".")).to_path_buf());
@@ -195,7 +200,7 @@ pub fn find(name: &str) -> anyhow::Result<PathBuf> {
     if p.join("profile.toml").is_file() && (name.contains('/') || name.starts_with('.')) {
         return Ok(p.to_path_buf());
     }
-    for dir in search_dirs() {
+    for dir in first.iter().cloned().chain(search_dirs()) {
         let cand = dir.join(name);
         if cand.join("profile.toml").is_file() {
             return Ok(cand);
