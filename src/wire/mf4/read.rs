@@ -517,6 +517,9 @@ enum Payload {
         width: usize,
         sd: usize,
     },
+    /// VLSD without signal data (asammdf writes none for an empty group): any record of the
+    /// group is reported.
+    Unresolved,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -1546,13 +1549,11 @@ impl<R: Read + Seek> Mf4Reader<R> {
                                 ));
                             }
                             if cn.data_at == 0 {
-                                return Err(layout_err(
-                                    &group,
-                                    "VLSD DataBytes without signal data",
-                                ));
+                                cg.payload = Payload::Unresolved;
+                            } else {
+                                cg.payload = Payload::VlsdCg { byte, width, cg: 0 };
+                                vlsd = Some(cn.data_at);
                             }
-                            cg.payload = Payload::VlsdCg { byte, width, cg: 0 };
-                            vlsd = Some(cn.data_at);
                         }
                         t => {
                             return Err(layout_err(
@@ -1819,6 +1820,13 @@ impl<R: Read + Seek> Mf4Reader<R> {
                             }
                             Err(e) => return Err(e),
                         }
+                    }
+                    Payload::Unresolved => {
+                        dg.stream.consume(need);
+                        return Err(Mf4Error::MissingSignalData {
+                            group: cg.name.clone(),
+                            offset: 0,
+                        });
                     }
                     _ => None,
                 };
