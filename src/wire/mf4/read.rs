@@ -1187,10 +1187,15 @@ impl Stream {
                             self.tmp.clear();
                             self.tmp.resize(n, 0);
                             // Stored column by column: byte c of every row, then byte c+1...
-                            for c in 0..cols {
-                                let col = &self.zbuf[c * rows..(c + 1) * rows];
-                                for (r, &b) in col.iter().enumerate() {
-                                    self.tmp[r * cols + c] = b;
+                            // Undone in tiles of 256 rows so the writes stay in L1.
+                            for r0 in (0..rows).step_by(256) {
+                                let r1 = (r0 + 256).min(rows);
+                                let out = &mut self.tmp[r0 * cols..r1 * cols];
+                                for c in 0..cols {
+                                    let col = &self.zbuf[c * rows + r0..c * rows + r1];
+                                    for (i, &b) in col.iter().enumerate() {
+                                        out[i * cols + c] = b;
+                                    }
                                 }
                             }
                             self.zbuf[..n].copy_from_slice(&self.tmp);
