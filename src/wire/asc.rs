@@ -492,68 +492,6 @@ pub fn days_from_civil(y: i64, m: u32, d: u32) -> i64 {
     era * 146_097 + doe - 719_468
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn dates() {
-        assert_eq!(days_from_civil(1970, 1, 1), 0);
-        assert_eq!(days_from_civil(2000, 3, 1), 11_017);
-        assert_eq!(
-            parse_date(b" Thu Jan 01 12:53:28.584 1970"),
-            Some(46_408_584_000_000)
-        );
-        let pm = parse_date(b"Sat Sep 30 10:06:13.191 PM 2017").unwrap();
-        let de = parse_date(b"Sam Sep 30 22:06:13.191 2017").unwrap();
-        assert_eq!(pm, de);
-        let am12 = parse_date(b"Thu Apr 28 12:00:00.000 am 2022").unwrap();
-        assert_eq!(am12 % (86_400 * 1_000_000_000), 0);
-    }
-
-    fn frame(p: &mut AscParser, l: &str) -> Frame {
-        match p.parse_line(l.as_bytes()) {
-            Ok(AscLine::Frame(f)) => f,
-            other => panic!("{l:?}: {other:?}"),
-        }
-    }
-
-    #[test]
-    fn relative_and_decimal() {
-        let mut p = AscParser::new();
-        p.parse_line(b"base dec  timestamps relative").unwrap();
-        p.parse_line(b"Begin Triggerblock Thu Jan 01 00:00:01.000 1970")
-            .unwrap();
-        let a = frame(&mut p, "0.5 1 100 Rx d 2 255 16");
-        let b = frame(&mut p, "0.25 2 2000x Tx d 1 7");
-        assert_eq!(a.t_ns, 1_500_000_000);
-        assert_eq!(b.t_ns, 1_750_000_000);
-        assert_eq!((a.id, a.payload()), (100, &[255u8, 16][..]));
-        assert_eq!((b.id, b.extended, b.iface.as_str()), (2000, true, "can1"));
-    }
-
-    #[test]
-    fn errors_name_the_problem() {
-        let mut p = AscParser::new();
-        assert_eq!(
-            p.parse_line(b"1.0 1 123 Rx d 8 01 02"),
-            Err(AscError::MissingData {
-                expected: 8,
-                found: 2
-            })
-        );
-        assert_eq!(
-            p.parse_line(b"1.0 1 800 Rx d 0"),
-            Err(AscError::IdRange(0x800, 11))
-        );
-        assert_eq!(
-            p.parse_line(b"1.0 1 123 Qx d 0"),
-            Err(AscError::Direction("Qx".into()))
-        );
-        assert_eq!(p.parse_line(b"hello"), Err(AscError::NotAscLine));
-    }
-}
-
 /// Civil date (year, month, day) of a day count since 1970-01-01 (inverse of
 /// [`days_from_civil`]).
 pub fn civil_from_days(z: i64) -> (i64, u32, u32) {
@@ -640,5 +578,67 @@ pub fn format_frame(f: &Frame, offset_ns: i64, ch: u32, out: &mut Vec<u8>) {
             }
             out.push(b'\n');
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dates() {
+        assert_eq!(days_from_civil(1970, 1, 1), 0);
+        assert_eq!(days_from_civil(2000, 3, 1), 11_017);
+        assert_eq!(
+            parse_date(b" Thu Jan 01 12:53:28.584 1970"),
+            Some(46_408_584_000_000)
+        );
+        let pm = parse_date(b"Sat Sep 30 10:06:13.191 PM 2017").unwrap();
+        let de = parse_date(b"Sam Sep 30 22:06:13.191 2017").unwrap();
+        assert_eq!(pm, de);
+        let am12 = parse_date(b"Thu Apr 28 12:00:00.000 am 2022").unwrap();
+        assert_eq!(am12 % (86_400 * 1_000_000_000), 0);
+    }
+
+    fn frame(p: &mut AscParser, l: &str) -> Frame {
+        match p.parse_line(l.as_bytes()) {
+            Ok(AscLine::Frame(f)) => f,
+            other => panic!("{l:?}: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn relative_and_decimal() {
+        let mut p = AscParser::new();
+        p.parse_line(b"base dec  timestamps relative").unwrap();
+        p.parse_line(b"Begin Triggerblock Thu Jan 01 00:00:01.000 1970")
+            .unwrap();
+        let a = frame(&mut p, "0.5 1 100 Rx d 2 255 16");
+        let b = frame(&mut p, "0.25 2 2000x Tx d 1 7");
+        assert_eq!(a.t_ns, 1_500_000_000);
+        assert_eq!(b.t_ns, 1_750_000_000);
+        assert_eq!((a.id, a.payload()), (100, &[255u8, 16][..]));
+        assert_eq!((b.id, b.extended, b.iface.as_str()), (2000, true, "can1"));
+    }
+
+    #[test]
+    fn errors_name_the_problem() {
+        let mut p = AscParser::new();
+        assert_eq!(
+            p.parse_line(b"1.0 1 123 Rx d 8 01 02"),
+            Err(AscError::MissingData {
+                expected: 8,
+                found: 2
+            })
+        );
+        assert_eq!(
+            p.parse_line(b"1.0 1 800 Rx d 0"),
+            Err(AscError::IdRange(0x800, 11))
+        );
+        assert_eq!(
+            p.parse_line(b"1.0 1 123 Qx d 0"),
+            Err(AscError::Direction("Qx".into()))
+        );
+        assert_eq!(p.parse_line(b"hello"), Err(AscError::NotAscLine));
     }
 }

@@ -826,7 +826,7 @@ impl<R: Read + Seek> Io<R> {
                 match cn.data_type {
                     0..=3 => {
                         let be = cn.data_type & 1 == 1;
-                        if be && (bit != 0 || count % 8 != 0) {
+                        if be && (bit != 0 || !count.is_multiple_of(8)) {
                             return Err(layout_err(
                                 group,
                                 format!("{}: big-endian bit field not byte-aligned", cn.name),
@@ -1543,7 +1543,7 @@ impl<R: Read + Seek> Mf4Reader<R> {
                         1 => {
                             let byte = cn.byte as usize;
                             let width = cn.count as usize / 8;
-                            if cn.count % 8 != 0
+                            if !cn.count.is_multiple_of(8)
                                 || !(1..=8).contains(&width)
                                 || cn.bit != 0
                                 || byte + width > data_bytes

@@ -548,8 +548,8 @@ impl<W: Write + Seek> Mf4Writer<W> {
             return Ok(self.w);
         }
         let nsinks = self.sinks.len();
-        for s in 0..nsinks {
-            let g = if nsinks == 1 { Group::Data8 } else { GROUPS[s] };
+        for (s, &g) in GROUPS.iter().enumerate().take(nsinks) {
+            // Unsorted: one sink; the group only matters for transposition (sorted only).
             self.flush_block(s, g)?;
         }
         let mut data = Vec::new();
