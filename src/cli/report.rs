@@ -25,7 +25,7 @@ pub enum Format {
 /// Sources (exactly one):
 ///   --journal DIR   shimmyd's journal directory (complete: traces, trend, alert history)
 ///   --state DIR     shimmyd's state directory (latest estimate and recent events only)
-///   LOG...          CAN logs (candump -L, ASC, BLF) of one vehicle in time order, replayed
+///   LOG...          CAN logs (candump -L, ASC, BLF, MF4) of one vehicle in time order, replayed
 ///                   through the daemon's pipeline with --config's DBC, mapping and thresholds
 ///
 /// Examples:

@@ -810,9 +810,10 @@ impl<R: Read + Seek> Io<R> {
         let src = match cn.cn_type {
             6 | 3 => Src::Virtual,
             0 | 2 | 4 => {
-                let bit = cn.bit;
+                // The format keeps bit offsets at 0-7; a larger one is read as whole bytes on.
+                let bit = cn.bit % 8;
                 let count = cn.count;
-                let byte = cn.byte as usize;
+                let byte = (cn.byte as usize).saturating_add(cn.bit as usize / 8);
                 let nbytes = (bit as usize + count as usize).div_ceil(8);
                 if count == 0 || count > 64 || byte.saturating_add(nbytes) > rec_data {
                     return Err(layout_err(
