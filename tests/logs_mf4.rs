@@ -201,3 +201,31 @@ fn rav4_candump_to_mf4_and_back_is_identical() {
         assert_eq!(got, frames, "{layout:?}");
     }
 }
+
+/// A header list (`HL`) in front of the data list, as MDF 4.1 writers may put it: same frames.
+#[test]
+fn header_list_in_front_of_the_data_list_reads_the_same() {
+    let frames = drive_frames();
+    let opts = Mf4WriterOptions {
+        layout: Mf4Layout::Unsorted,
+        compression: Mf4Compression::Deflate,
+        block_size: 16 * 1024,
+        unfinalized: false,
+    };
+    let mut b = write_mf4(&frames, opts);
+    let u64at = |b: &[u8], at: usize| u64::from_le_bytes(b[at..at + 8].try_into().unwrap());
+    let dg = u64at(&b, 64 + 24) as usize;
+    let dl = u64at(&b, dg + 24 + 16);
+    assert_eq!(&b[dl as usize..dl as usize + 4], b"##DL");
+    let hl = b.len().div_ceil(8) * 8;
+    b.resize(hl, 0);
+    b.extend_from_slice(b"##HL\0\0\0\0");
+    b.extend_from_slice(&40u64.to_le_bytes());
+    b.extend_from_slice(&1u64.to_le_bytes());
+    b.extend_from_slice(&dl.to_le_bytes());
+    b.extend_from_slice(&[0u8; 8]); // flags, zip type (deflate), reserved
+    b[dg + 24 + 16..dg + 24 + 24].copy_from_slice(&(hl as u64).to_le_bytes());
+    let (got, st) = read_mf4(b);
+    assert_eq!(st.malformed, 0);
+    assert_eq!(got, frames);
+}
