@@ -1,6 +1,9 @@
 //! Log reading throughput: the RAV4 drive repeated to at least 1 M frames, written to a temp
-//! file as candump -L, Vector ASC and BLF, then read back through `LogReader` (file in the
-//! page cache; parse only, no decoding). Also the bare candump line parser on in-memory lines.
+//! file as candump -L, Vector ASC, BLF and ASAM MDF 4 (unsorted DT blocks as loggers write,
+//! sorted transposed DZ as asammdf saves), then read back through `LogReader` (file in the page
+//! cache; parse only, no decoding). Also the bare candump line parser on in-memory lines, and,
+//! in the same run, asammdf reading the same MF4 files (benches/asammdf_read.py, when python3
+//! has asammdf) for the ratio.
 //!
 //! Run: `cargo bench --bench read_logs` (needs the shared data; see docs/BENCHMARKS.md).
 
@@ -9,6 +12,7 @@ use shimmy::source::log::LogReader;
 use shimmy::source::recorder::CandumpWriter;
 use shimmy::source::CanSource;
 use shimmy::wire::candump::{parse_common_into, parse_line};
+use shimmy::wire::mf4::{Mf4Compression, Mf4Layout, Mf4Writer, Mf4WriterOptions};
 use shimmy::wire::Frame;
 use std::hint::black_box;
 use std::io::Write;
@@ -129,6 +133,41 @@ fn write_blf(frames: &[Frame], path: &Path) {
     }
 }
 
+fn write_mf4(frames: &[Frame], path: &Path, layout: Mf4Layout, compression: Mf4Compression) {
+    let f = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let opts = Mf4WriterOptions {
+        layout,
+        compression,
+        ..Default::default()
+    };
+    let mut w = Mf4Writer::new(f, opts).unwrap();
+    for f in frames {
+        w.write(f).unwrap();
+    }
+    w.finish().unwrap();
+}
+
+/// asammdf's (or, with `python_can`, python-can's MF4Reader's) frames per CPU second on
+/// `path` (best of 3), if python3 has them.
+fn asammdf_rate(path: &Path, python_can: bool) -> Option<f64> {
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/asammdf_read.py");
+    let mut cmd = std::process::Command::new("python3");
+    cmd.arg(script);
+    if python_can {
+        cmd.arg("--python-can");
+    }
+    let out = cmd.arg(path).arg("3").output().ok()?;
+    if !out.status.success() {
+        eprintln!("asammdf_read.py: {}", String::from_utf8_lossy(&out.stderr));
+        return None;
+    }
+    let s = String::from_utf8_lossy(&out.stdout);
+    let mut it = s.split_whitespace();
+    let n: f64 = it.next()?.parse().ok()?;
+    let cpu: f64 = it.next()?.parse().ok()?;
+    Some(n / cpu)
+}
+
 fn count_frames(path: &Path) -> u64 {
     let mut r = LogReader::open(path).unwrap();
     let mut n = 0u64;
@@ -193,8 +232,55 @@ fn bench(c: &mut Criterion) {
     write_candump(&frames, &cd);
     write_asc(&frames, &asc);
     write_blf(&frames, &blf);
-    for p in [&cd, &asc, &blf] {
+    let mf4_dt = dir.path().join("rav4_x19_unsorted_dt.mf4");
+    let mf4_dz = dir.path().join("rav4_x19_sorted_dz.mf4");
+    write_mf4(&frames, &mf4_dt, Mf4Layout::Unsorted, Mf4Compression::None);
+    write_mf4(
+        &frames,
+        &mf4_dz,
+        Mf4Layout::Sorted,
+        Mf4Compression::Transposed,
+    );
+    for p in [&cd, &asc, &blf, &mf4_dt, &mf4_dz] {
         assert_eq!(count_frames(p), n as u64, "{}", p.display());
+    }
+    for p in [&mf4_dt, &mf4_dz] {
+        println!(
+            "{}: {} bytes",
+            p.file_name().unwrap().to_string_lossy(),
+            std::fs::metadata(p).unwrap().len()
+        );
+    }
+    if std::env::var_os("SHIMMY_BENCH_KEEP").is_some() {
+        // Keep the MF4 files for a peak-memory run (docs/BENCHMARKS.md).
+        for p in [&cd, &mf4_dt, &mf4_dz] {
+            std::fs::copy(p, std::env::temp_dir().join(p.file_name().unwrap())).unwrap();
+        }
+    }
+
+    // MF4: ours and asammdf's on the same files, in this run.
+    for (name, p) in [
+        ("MF4 unsorted DT", &mf4_dt),
+        ("MF4 sorted DZ (transposed)", &mf4_dz),
+    ] {
+        let Some(c0) = thread_cpu_s() else { break };
+        let mut m = 0u64;
+        for _ in 0..5 {
+            m += count_frames_in_place(p);
+        }
+        let ours = m as f64 / (thread_cpu_s().unwrap() - c0);
+        println!(
+            "cpu-time rate {name} file, read_frame in place: {:.2} M frames per CPU second",
+            ours / 1e6
+        );
+        match asammdf_rate(p, false) {
+            Some(r) => println!(
+                "cpu-time rate {name} file, asammdf: {:.3} M frames per CPU second; ours / asammdf = {:.0}x",
+                r / 1e6,
+                ours / r
+            ),
+            None => println!("asammdf not available: no ratio for {name}"),
+        }
     }
 
     cpu_rate("candump file", 5, || count_frames(&cd));
@@ -203,6 +289,47 @@ fn bench(c: &mut Criterion) {
     });
     cpu_rate("ASC file", 5, || count_frames(&asc));
     cpu_rate("BLF file", 5, || count_frames(&blf));
+
+    // python-can's MF4Reader reads only what its MF4Writer wrote: the RAV4 drive (53,800
+    // frames) written by python-can, read by it and by us.
+    let pc = dir.path().join("rav4_python_can.mf4");
+    let jobs = dir.path().join("jobs.txt");
+    let rav4 = shimmy::shared_data::require_file(shimmy::shared_data::RAV4_LOG).unwrap();
+    std::fs::write(
+        &jobs,
+        format!("pycan {} {} 0\n", rav4.display(), pc.display()),
+    )
+    .unwrap();
+    let made = std::process::Command::new("python3")
+        .arg(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/tests/mf4_fixtures/asammdf_ref.py"
+        ))
+        .arg(&jobs)
+        .status()
+        .is_ok_and(|s| s.success());
+    if let (true, Some(c0)) = (made, thread_cpu_s()) {
+        let mut m = 0u64;
+        for _ in 0..40 {
+            m += count_frames_in_place(&pc);
+        }
+        let ours = m as f64 / (thread_cpu_s().unwrap() - c0);
+        println!("cpu-time rate python-can-written MF4 (53,800 frames), ours: {:.2} M frames per CPU second", ours / 1e6);
+        if let Some(r) = asammdf_rate(&pc, true) {
+            println!(
+                "cpu-time rate python-can-written MF4, python-can MF4Reader: {:.3} M frames per CPU second; ours / python-can = {:.0}x",
+                r / 1e6,
+                ours / r
+            );
+        }
+        if let Some(r) = asammdf_rate(&pc, false) {
+            println!(
+                "cpu-time rate python-can-written MF4, asammdf: {:.3} M frames per CPU second; ours / asammdf = {:.0}x",
+                r / 1e6,
+                ours / r
+            );
+        }
+    }
 
     let mut g = c.benchmark_group("read_logs");
     g.sample_size(10);
@@ -215,6 +342,12 @@ fn bench(c: &mut Criterion) {
     });
     g.bench_function(format!("blf_file_{n}_frames"), |b| {
         b.iter(|| count_frames(&blf))
+    });
+    g.bench_function(format!("mf4_unsorted_dt_file_{n}_frames"), |b| {
+        b.iter(|| count_frames(&mf4_dt))
+    });
+    g.bench_function(format!("mf4_sorted_dz_file_{n}_frames"), |b| {
+        b.iter(|| count_frames(&mf4_dz))
     });
     g.finish();
 

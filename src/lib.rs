@@ -5,7 +5,7 @@
 //!
 //! | stage | module | may touch |
 //! |---|---|---|
-//! | wire formats (candump, ASC, BLF; parse/emit, no policy) | [`wire`] | bytes only |
+//! | wire formats (candump, ASC, BLF, MF4; parse/emit, no policy) | [`wire`] | bytes only |
 //! | frame sources (log reader, live SocketCAN, fault injector, recorder) | [`source`] | [`wire`] |
 //! | DBC loading and signal decoding | [`dbc`] | [`wire::Frame`] |
 //! | vehicle signal mapping and validity (timeouts, counters, checksums) | [`signals`] | [`dbc`] |

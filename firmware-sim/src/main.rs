@@ -26,7 +26,8 @@ use firmware_sim::{FirmwareSim, RunInfo, Scenario};
 /// background traffic; the profile's chassis is the vehicle unless the scenario names one.
 ///
 /// Output (one of):
-///   --out LOG        a candump -L log, written as fast as the model runs ("-" = stdout);
+///   --out LOG        a candump -L log, written as fast as the model runs ("-" = stdout;
+///                    LOG ending in .mf4, .asc or .blf: that format instead);
 ///   --iface IFACE    frames sent on a SocketCAN interface (e.g. vcan0) in real time, or at
 ///                    N× real time with --speed N (0 = as fast as possible); add --out LOG to
 ///                    also record what was sent.
@@ -87,7 +88,8 @@ struct Cli {
     #[arg(long, value_name = "S")]
     seed: Option<u64>,
 
-    /// Write a candump -L log here ("-" for stdout). With --iface: also record what was sent.
+    /// Write a candump -L log here ("-" for stdout; .mf4, .asc, .blf: that format). With
+    /// --iface: also record what was sent.
     #[arg(long, value_name = "LOG")]
     out: Option<PathBuf>,
 
@@ -279,14 +281,25 @@ fn shimmy_dbc_text(p: &Path) -> anyhow::Result<String> {
     std::fs::read_to_string(p).with_context(|| format!("cannot read DBC {}", p.display()))
 }
 
-/// A candump -L log being written.
+/// A candump -L log being written (or, for .mf4/.asc/.blf, shimmy's writer for that format).
 struct LogOut {
     w: std::io::BufWriter<Box<dyn Write>>,
     path: PathBuf,
+    other: Option<shimmy::source::writer::LogWriter>,
 }
 
 impl LogOut {
     fn create(out: &Path) -> anyhow::Result<LogOut> {
+        use shimmy::source::writer::{LogWriter, OutFormat};
+        if out.as_os_str() != "-" && OutFormat::from_path(out) != OutFormat::Candump {
+            let w = LogWriter::create(out, Default::default())
+                .with_context(|| format!("cannot create log {}", out.display()))?;
+            return Ok(LogOut {
+                w: std::io::BufWriter::new(Box::new(std::io::sink())),
+                path: out.to_path_buf(),
+                other: Some(w),
+            });
+        }
         let sink: Box<dyn Write> = if out.as_os_str() == "-" {
             Box::new(std::io::stdout().lock())
         } else {
@@ -298,15 +311,25 @@ impl LogOut {
         Ok(LogOut {
             w: std::io::BufWriter::with_capacity(1 << 16, sink),
             path: out.to_path_buf(),
+            other: None,
         })
     }
 
     fn write(&mut self, f: &shimmy::wire::Frame) -> anyhow::Result<()> {
+        if let Some(o) = &mut self.other {
+            return o
+                .write(f)
+                .with_context(|| format!("cannot write log {}", self.path.display()));
+        }
         shimmy::wire::candump::write_frame(&mut self.w, f)
             .with_context(|| format!("cannot write log {}", self.path.display()))
     }
 
     fn finish(mut self) -> anyhow::Result<()> {
+        if let Some(o) = self.other.take() {
+            o.finish()
+                .with_context(|| format!("cannot write log {}", self.path.display()))?;
+        }
         self.w
             .flush()
             .with_context(|| format!("cannot write log {}", self.path.display()))

@@ -13,8 +13,10 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Cmd {
-    /// Decode CAN logs (candump -L, ASC, BLF) with a DBC file, like `cantools decode`.
+    /// Decode CAN logs (candump -L, ASC, BLF, MF4) with a DBC file, like `cantools decode`.
     Decode(shimmy::cli::decode::Args),
+    /// Convert a CAN log between candump -L, Vector ASC, BLF and ASAM MDF 4 (.mf4).
+    Convert(shimmy::cli::convert::Args),
     /// Estimate steering-joint clearance from one vehicle's CAN logs (braking events, model table).
     Estimate(shimmy::cli::estimate::Args),
     /// Build the clearance estimator's response table from the shimmy model.
@@ -30,6 +32,7 @@ fn main() {
     let cli = Cli::parse();
     let result: anyhow::Result<()> = match cli.cmd {
         Cmd::Decode(a) => shimmy::cli::decode::run(a),
+        Cmd::Convert(a) => shimmy::cli::convert::run(a),
         Cmd::Estimate(a) => shimmy::cli::estimate::run(a),
         Cmd::Calibrate(a) => shimmy::cli::calibrate::run(a),
         Cmd::Report(a) => shimmy::cli::report::run(a),

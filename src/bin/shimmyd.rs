@@ -11,7 +11,7 @@ use shimmy::daemon::run::{run, Options};
 /// them to a crash-safe journal.
 ///
 /// Live: `shimmyd --config /etc/shimmyd.toml` reads the interfaces of `[input]`. Replay:
-/// `shimmyd --config FILE --replay LOG...` plays the logs (candump -L, ASC, BLF) at their
+/// `shimmyd --config FILE --replay LOG...` plays the logs (candump -L, ASC, BLF, MF4) at their
 /// recorded timing, or as fast as possible with `--fast`, then exits.
 ///
 /// Outputs: the journal (`outputs.journal_dir`, JSON lines with sequence numbers and CRCs; read

@@ -2,6 +2,7 @@
 //! a `run` function. Help text here is the manual.
 
 pub mod calibrate;
+pub mod convert;
 pub mod decode;
 pub mod estimate;
 pub mod report;

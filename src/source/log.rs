@@ -1,6 +1,8 @@
 //! [`LogReader`]: a [`CanSource`] that replays a CAN log file, streaming, in constant memory
 //! whatever the file's size. It recognises the format by content, then by extension:
-//! a `LOGG` signature is Vector BLF; a Vector ASC header (`date`, `base`, `Begin Triggerblock`)
+//! an `MDF     ` or `UnFinMF ` identification is ASAM MDF 4 (bus logging, [`crate::wire::mf4`];
+//! it needs a seekable file, so not gzip-compressed); a `LOGG` signature is Vector BLF; a Vector
+//! ASC header (`date`, `base`, `Begin Triggerblock`)
 //! is ASC; otherwise `.blf` / `.asc` extensions decide, and everything else is read as
 //! can-utils `candump -L`. A gzip-compressed file (`.log.gz`, `.asc.gz`) is decompressed on
 //! the fly and the same rules applied to its contents.
@@ -17,9 +19,10 @@ use super::{CanSource, Skip, SourceStats};
 use crate::wire::asc::{AscLine, AscParser};
 use crate::wire::blf::{BlfEvent, BlfReader};
 use crate::wire::candump::{self, Parsed};
+use crate::wire::mf4::{self, Mf4Reader, Mf4Step};
 use crate::wire::{Frame, FrameKind};
 use std::fs::File;
-use std::io::{self, Read};
+use std::io::{self, Read, Seek};
 use std::path::Path;
 
 /// How many skips a reader reports in detail (all are counted).
@@ -34,6 +37,8 @@ pub enum LogFormat {
     Asc,
     /// Vector BLF (binary, zlib-compressed containers).
     Blf,
+    /// ASAM MDF 4 bus logging (`.mf4`).
+    Mf4,
 }
 
 impl LogFormat {
@@ -41,6 +46,9 @@ impl LogFormat {
     pub fn detect(name: &Path, head: &[u8]) -> LogFormat {
         if head.starts_with(b"LOGG") {
             return LogFormat::Blf;
+        }
+        if mf4::is_mdf4(head) {
+            return LogFormat::Mf4;
         }
         let text = head.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(head);
         let first = text
@@ -67,6 +75,7 @@ impl LogFormat {
             .as_deref()
         {
             Some("blf") => LogFormat::Blf,
+            Some("mf4") => LogFormat::Mf4,
             Some("asc") => LogFormat::Asc,
             _ => LogFormat::Candump,
         }
@@ -75,13 +84,18 @@ impl LogFormat {
 
 type BoxRead = Box<dyn Read + Send>;
 
+/// A seekable byte source (what MF4 needs).
+pub trait ReadSeek: Read + Seek + Send {}
+impl<T: Read + Seek + Send> ReadSeek for T {}
+
 enum Kind {
     Candump(LineReader<BoxRead>),
     Asc(LineReader<BoxRead>, AscParser),
     Blf(BlfReader<BoxRead>),
+    Mf4(Box<Mf4Reader<Box<dyn ReadSeek>>>),
 }
 
-/// Replays a candump, ASC or BLF log as a [`CanSource`].
+/// Replays a candump, ASC, BLF or MF4 log as a [`CanSource`].
 pub struct LogReader {
     name: String,
     format: LogFormat,
@@ -112,10 +126,52 @@ impl LogReader {
     /// Open a log file, detecting its format.
     pub fn open(path: impl AsRef<Path>) -> io::Result<LogReader> {
         let path = path.as_ref();
-        let file = File::open(path).map_err(|e| {
+        let mut file = File::open(path).map_err(|e| {
             io::Error::new(e.kind(), format!("cannot open {}: {e}", path.display()))
         })?;
+        let mut head = [0u8; 8];
+        let n = file.read(&mut head).unwrap_or(0);
+        file.rewind()?;
+        if mf4::is_mdf4(&head[..n]) {
+            return Self::from_seekable(file, path);
+        }
         Self::from_reader(file, path)
+    }
+
+    /// Read a log from a seekable reader (any format; MF4 needs one).
+    pub fn from_seekable<R: Read + Seek + Send + 'static>(
+        mut reader: R,
+        name: impl AsRef<Path>,
+    ) -> io::Result<LogReader> {
+        let name = name.as_ref();
+        let mut head = [0u8; 8];
+        let mut n = 0;
+        while n < 8 {
+            match reader.read(&mut head[n..]) {
+                Ok(0) => break,
+                Ok(k) => n += k,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e),
+            }
+        }
+        reader.rewind()?;
+        if !mf4::is_mdf4(&head[..n]) {
+            return Self::from_reader(reader, name);
+        }
+        let boxed: Box<dyn ReadSeek> = Box::new(reader);
+        let m = Mf4Reader::open(boxed).map_err(|e| {
+            io::Error::new(
+                io::ErrorKind::InvalidData,
+                format!("{}: cannot read as MDF 4: {e}", name.display()),
+            )
+        })?;
+        let warnings: Vec<String> = m.warnings().to_vec();
+        let mut r = Self::with_kind(Kind::Mf4(Box::new(m)), name, LogFormat::Mf4);
+        for w in warnings {
+            r.stats.malformed += 1;
+            r.report(0, "metadata ", w);
+        }
+        Ok(r)
     }
 
     /// Read a log from any reader; `name` is used for format detection (extension) and in
@@ -136,6 +192,15 @@ impl LogReader {
             }
         }
         head.truncate(n);
+        if mf4::is_mdf4(&head) {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!(
+                    "{}: an MDF 4 file must be read from a seekable file (not a pipe or gzip)",
+                    name.display()
+                ),
+            ));
+        }
         let chained: BoxRead = Box::new(io::Cursor::new(head.clone()).chain(reader));
         if head.starts_with(&[0x1F, 0x8B]) {
             // gzip-compressed log (`.log.gz`, `.asc.gz`...): decompress on the fly (32 KiB
@@ -159,7 +224,13 @@ impl LogReader {
             LogFormat::Candump => Kind::Candump(LineReader::new(reader)),
             LogFormat::Asc => Kind::Asc(LineReader::new(reader), AscParser::new()),
             LogFormat::Blf => Kind::Blf(BlfReader::new(reader)),
+            // Not seekable: read as candump, which reports every record as malformed.
+            LogFormat::Mf4 => Kind::Candump(LineReader::new(reader)),
         };
+        Self::with_kind(kind, name, format)
+    }
+
+    fn with_kind(kind: Kind, name: impl AsRef<Path>, format: LogFormat) -> LogReader {
         LogReader {
             name: name.as_ref().display().to_string(),
             format,
@@ -184,13 +255,22 @@ impl LogReader {
         self.format
     }
 
-    /// For ASC and BLF: the wall-clock start of the measurement in ns since the Unix epoch (as
-    /// the file's header states it, read as UTC), which the frame timestamps include.
+    /// For ASC, BLF and MF4: the wall-clock start of the measurement in ns since the Unix
+    /// epoch (as the file's header states it, read as UTC), which the frame timestamps include.
     pub fn start_epoch_ns(&self) -> Option<i64> {
         match &self.kind {
             Kind::Candump(_) => None,
             Kind::Asc(_, p) => p.start_epoch_ns(),
             Kind::Blf(b) => b.start_epoch_ns(),
+            Kind::Mf4(m) => Some(m.start_epoch_ns()),
+        }
+    }
+
+    /// For MF4: the acquisition name of the channel group of the last frame read.
+    pub fn mf4_group(&self) -> Option<&str> {
+        match &self.kind {
+            Kind::Mf4(m) => Some(m.last_group()),
+            _ => None,
         }
     }
 
@@ -254,6 +334,15 @@ impl LogReader {
                 Some(Err(e)) => Step::Malformed(blf.object_index(), e.to_string()),
                 None => Step::End,
             }),
+            Kind::Mf4(m) => {
+                let at = self.stats.frames + self.stats.skipped + self.stats.malformed + 1;
+                Ok(match m.next_into(out)? {
+                    Mf4Step::Frame => Step::Frame,
+                    Mf4Step::Other => Step::Skipped(0, String::new()),
+                    Mf4Step::Error(e) => Step::Malformed(at, e.to_string()),
+                    Mf4Step::End => Step::End,
+                })
+            }
         }
     }
 }
@@ -341,10 +430,10 @@ impl LogReader {
                 }
                 Step::Malformed(at, reason) => {
                     self.stats.malformed += 1;
-                    let unit = if self.format == LogFormat::Blf {
-                        "object "
-                    } else {
-                        ""
+                    let unit = match self.format {
+                        LogFormat::Blf => "object ",
+                        LogFormat::Mf4 => "record ",
+                        _ => "",
                     };
                     self.report(at, unit, reason);
                 }

@@ -9,6 +9,7 @@ pub mod fault;
 pub mod lines;
 pub mod log;
 pub mod recorder;
+pub mod writer;
 
 use crate::wire::Frame;
 

@@ -492,6 +492,95 @@ pub fn days_from_civil(y: i64, m: u32, d: u32) -> i64 {
     era * 146_097 + doe - 719_468
 }
 
+/// Civil date (year, month, day) of a day count since 1970-01-01 (inverse of
+/// [`days_from_civil`]).
+pub fn civil_from_days(z: i64) -> (i64, u32, u32) {
+    let z = z + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
+    let y = yoe + era * 400 + (m <= 2) as i64;
+    (y, m, d)
+}
+
+/// `Thu Jan 01 00:00:00.000 1970`: an ASC date (UTC, millisecond resolution; `epoch_ns` is
+/// truncated to the millisecond, and must not be negative).
+pub fn format_date(epoch_ns: i64) -> String {
+    const WD: [&str; 7] = ["Thu", "Fri", "Sat", "Sun", "Mon", "Tue", "Wed"];
+    const MO: [&str; 12] = [
+        "Jan", "Feb", "Mar", "Apr", "May", "Jun", "Jul", "Aug", "Sep", "Oct", "Nov", "Dec",
+    ];
+    let ms = epoch_ns.max(0) / 1_000_000;
+    let days = ms.div_euclid(86_400_000);
+    let rem = ms.rem_euclid(86_400_000);
+    let (y, m, d) = civil_from_days(days);
+    format!(
+        "{} {} {:02} {:02}:{:02}:{:02}.{:03} {}",
+        WD[days.rem_euclid(7) as usize],
+        MO[m as usize - 1],
+        d,
+        rem / 3_600_000,
+        rem / 60_000 % 60,
+        rem / 1000 % 60,
+        rem % 1000,
+        y
+    )
+}
+
+/// The header lines of an ASC file whose trigger block starts at `start_ns` (hex base,
+/// absolute timestamps), as Vector tools and python-can write it.
+pub fn format_header(start_ns: i64) -> String {
+    let date = format_date(start_ns);
+    format!(
+        "date {date}\nbase hex  timestamps absolute\ninternal events logged\n// version 9.0.0\n\
+         Begin Triggerblock {date}\n   0.000000 Start of measurement\n"
+    )
+}
+
+/// The closing line of an ASC file.
+pub const FOOTER: &str = "End TriggerBlock\n";
+
+/// One event line for `f` at `offset_ns` after the trigger block's start, on 1-based channel
+/// `ch`, appended to `out`. Times are written to the microsecond (the format's resolution,
+/// rounded); an error frame is written as `ErrorFrame` (its SocketCAN class and detail bytes
+/// have no place in the format).
+pub fn format_frame(f: &Frame, offset_ns: i64, ch: u32, out: &mut Vec<u8>) {
+    use std::io::Write;
+    let us = (offset_ns.max(0) + 500) / 1000;
+    let _ = write!(out, "{:>4}.{:06} ", us / 1_000_000, us % 1_000_000);
+    let id = format!("{:X}{}", f.id, if f.extended { "x" } else { "" });
+    match f.kind {
+        FrameKind::Error => {
+            let _ = writeln!(out, "{ch}  ErrorFrame");
+        }
+        FrameKind::Remote => {
+            let _ = writeln!(out, "{ch}  {id:<15} Rx   r {:X}", f.dlc);
+        }
+        FrameKind::Data if f.fd => {
+            let _ = write!(
+                out,
+                "CANFD {ch:>3} Rx {id:>8} {:>32} {} {} {:X} {:>2}",
+                "", f.brs as u8, f.esi as u8, f.dlc, f.len
+            );
+            for b in f.payload() {
+                let _ = write!(out, " {b:02X}");
+            }
+            out.push(b'\n');
+        }
+        FrameKind::Data => {
+            let _ = write!(out, "{ch}  {id:<15} Rx   d {:X}", f.dlc);
+            for b in f.payload() {
+                let _ = write!(out, " {b:02X}");
+            }
+            out.push(b'\n');
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

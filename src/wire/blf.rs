@@ -581,3 +581,197 @@ fn set_id(f: &mut Frame, raw: u32) {
         raw & 0x7FF
     };
 }
+
+/// Streaming BLF writer: a 144-byte `LOGG` header (measurement start as a UTC SYSTEMTIME, to
+/// the millisecond; object count and file size patched by [`BlfWriter::finish`]), then
+/// `LOG_CONTAINER`s of zlib-compressed objects (128 KiB uncompressed each), as python-can and
+/// Vector tools write them. Objects: `CAN_MESSAGE` (classic data and remote frames),
+/// `CAN_FD_MESSAGE_64` (CAN FD) and `CAN_ERROR_EXT` (error frames: BLF has no place for the
+/// SocketCAN class or detail bytes). Object times are ns after the start (lossless).
+pub struct BlfWriter<W: io::Write + io::Seek> {
+    w: W,
+    start_ns: Option<i64>,
+    chunk: Vec<u8>,
+    z: Vec<u8>,
+    objects: u32,
+    size: u64,
+    uncompressed: u64,
+    last_ns: i64,
+}
+
+const CONTAINER_BYTES: usize = 128 * 1024;
+
+fn systemtime(epoch_ns: i64) -> [u8; 16] {
+    let ms = epoch_ns.max(0) / 1_000_000;
+    let days = ms.div_euclid(86_400_000);
+    let rem = ms.rem_euclid(86_400_000);
+    let (y, m, d) = super::asc::civil_from_days(days);
+    let dow = (days + 4).rem_euclid(7); // 1970-01-01 was a Thursday (4)
+    let v = [
+        y as u16,
+        m as u16,
+        dow as u16,
+        d as u16,
+        (rem / 3_600_000) as u16,
+        (rem / 60_000 % 60) as u16,
+        (rem / 1000 % 60) as u16,
+        (rem % 1000) as u16,
+    ];
+    let mut b = [0u8; 16];
+    for (i, x) in v.iter().enumerate() {
+        b[2 * i..2 * i + 2].copy_from_slice(&x.to_le_bytes());
+    }
+    b
+}
+
+impl<W: io::Write + io::Seek> BlfWriter<W> {
+    pub fn new(w: W) -> BlfWriter<W> {
+        BlfWriter {
+            w,
+            start_ns: None,
+            chunk: Vec::with_capacity(CONTAINER_BYTES + 256),
+            z: Vec::new(),
+            objects: 0,
+            size: 0,
+            uncompressed: 0,
+            last_ns: 0,
+        }
+    }
+
+    fn header(&self, stop_ns: i64) -> [u8; 144] {
+        let mut h = [0u8; 144];
+        h[..4].copy_from_slice(b"LOGG");
+        h[4..8].copy_from_slice(&144u32.to_le_bytes());
+        h[8] = 5; // application: "other"
+        h[16..24].copy_from_slice(&self.size.to_le_bytes());
+        h[24..32].copy_from_slice(&self.uncompressed.to_le_bytes());
+        h[32..36].copy_from_slice(&self.objects.to_le_bytes());
+        let start = self.start_ns.unwrap_or(0);
+        h[40..56].copy_from_slice(&systemtime(start));
+        h[56..72].copy_from_slice(&systemtime(stop_ns));
+        h
+    }
+
+    /// The measurement start the object times count from (the first frame's time truncated
+    /// to the millisecond), once a frame was written.
+    pub fn start_ns(&self) -> Option<i64> {
+        self.start_ns
+    }
+
+    /// Write one frame on 1-based channel `ch`. A frame before the start (or before 1970) is
+    /// written at the start; the caller counts that.
+    pub fn write(&mut self, f: &Frame, ch: u16) -> io::Result<()> {
+        let start = match self.start_ns {
+            Some(s) => s,
+            None => {
+                let s = f.t_ns.max(0) / 1_000_000 * 1_000_000;
+                self.start_ns = Some(s);
+                let h = self.header(s);
+                self.w.write_all(&h)?;
+                self.size = 144;
+                s
+            }
+        };
+        let t = (f.t_ns - start).max(0) as u64;
+        self.last_ns = self.last_ns.max(f.t_ns);
+        let (ty, body): (u32, usize) = match f.kind {
+            FrameKind::Data if f.fd => (CAN_FD_MESSAGE_64, 40 + 64),
+            FrameKind::Error => (CAN_ERROR_EXT, 32),
+            _ => (CAN_MESSAGE, 16),
+        };
+        let size = 32 + body;
+        let c = &mut self.chunk;
+        c.extend_from_slice(b"LOBJ");
+        c.extend_from_slice(&32u16.to_le_bytes());
+        c.extend_from_slice(&1u16.to_le_bytes());
+        c.extend_from_slice(&(size as u32).to_le_bytes());
+        c.extend_from_slice(&ty.to_le_bytes());
+        c.extend_from_slice(&2u32.to_le_bytes()); // timestamps in ns
+        c.extend_from_slice(&[0; 4]);
+        c.extend_from_slice(&t.to_le_bytes());
+        let raw_id = f.id | if f.extended { 0x8000_0000 } else { 0 };
+        match ty {
+            CAN_MESSAGE => {
+                c.extend_from_slice(&ch.to_le_bytes());
+                c.push(if f.kind == FrameKind::Remote { 0x80 } else { 0 });
+                c.push(f.dlc);
+                c.extend_from_slice(&raw_id.to_le_bytes());
+                let mut d = [0u8; 8];
+                if f.kind == FrameKind::Data {
+                    d[..f.len.min(8) as usize].copy_from_slice(&f.data[..f.len.min(8) as usize]);
+                }
+                c.extend_from_slice(&d);
+            }
+            CAN_FD_MESSAGE_64 => {
+                c.push(ch.min(255) as u8);
+                c.push(f.dlc);
+                c.push(f.len);
+                c.push(0);
+                c.extend_from_slice(&raw_id.to_le_bytes());
+                c.extend_from_slice(&0u32.to_le_bytes()); // frame length (ns)
+                let fl = 0x1000 | if f.brs { 0x2000 } else { 0 } | if f.esi { 0x4000 } else { 0 };
+                c.extend_from_slice(&(fl as u32).to_le_bytes());
+                c.extend_from_slice(&[0u8; 24]);
+                c.extend_from_slice(&f.data);
+            }
+            _ => {
+                c.extend_from_slice(&ch.to_le_bytes());
+                c.extend_from_slice(&[0u8; 30]);
+            }
+        }
+        self.objects += 1;
+        if self.chunk.len() >= CONTAINER_BYTES {
+            self.flush_container()?;
+        }
+        Ok(())
+    }
+
+    fn flush_container(&mut self) -> io::Result<()> {
+        if self.chunk.is_empty() {
+            return Ok(());
+        }
+        let mut e = flate2::write::ZlibEncoder::new(
+            std::mem::take(&mut self.z),
+            flate2::Compression::default(),
+        );
+        io::Write::write_all(&mut e, &self.chunk)?;
+        let z = e.finish()?;
+        let size = 32 + z.len();
+        let mut h = Vec::with_capacity(32);
+        h.extend_from_slice(b"LOBJ");
+        h.extend_from_slice(&16u16.to_le_bytes());
+        h.extend_from_slice(&1u16.to_le_bytes());
+        h.extend_from_slice(&(size as u32).to_le_bytes());
+        h.extend_from_slice(&LOG_CONTAINER.to_le_bytes());
+        h.extend_from_slice(&2u16.to_le_bytes());
+        h.extend_from_slice(&[0; 6]);
+        h.extend_from_slice(&(self.chunk.len() as u32).to_le_bytes());
+        h.extend_from_slice(&[0; 4]);
+        self.w.write_all(&h)?;
+        self.w.write_all(&z)?;
+        self.w.write_all(&[0u8; 4][..size % 4])?;
+        self.size += (size + size % 4) as u64;
+        self.uncompressed += self.chunk.len() as u64 + 32;
+        self.chunk.clear();
+        self.z = z;
+        self.z.clear();
+        Ok(())
+    }
+
+    /// Write the last container and patch the header; returns the inner writer.
+    pub fn finish(mut self) -> io::Result<W> {
+        if self.start_ns.is_none() {
+            self.start_ns = Some(0);
+            let h = self.header(0);
+            self.w.write_all(&h)?;
+            self.size = 144;
+        }
+        self.flush_container()?;
+        let h = self.header(self.last_ns);
+        self.w.seek(io::SeekFrom::Start(0))?;
+        self.w.write_all(&h)?;
+        self.w.seek(io::SeekFrom::End(0))?;
+        self.w.flush()?;
+        Ok(self.w)
+    }
+}

@@ -1,9 +1,11 @@
-//! Wire formats: the CAN frame value type and the log file formats (parse and emit). No policy:
+//! Wire formats: the CAN frame value type and the log file formats (candump -L, Vector ASC and
+//! BLF, ASAM MDF 4; parse and emit). No policy:
 //! nothing here decides what to do with a bad line beyond describing what is wrong with it.
 
 pub mod asc;
 pub mod blf;
 pub mod candump;
 pub mod frame;
+pub mod mf4;
 
 pub use frame::{Frame, FrameKind, IfaceName, MAX_DATA};
