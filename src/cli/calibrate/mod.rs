@@ -846,22 +846,16 @@ fn grid_from(args: &Args, ranges: NuisanceRanges) -> anyhow::Result<Grid> {
 }
 
 /// The work directory of a build: `--work-dir`, else `.calibrate-<hash>` beside `first_out`;
-/// the hash names the chassis, the grid and the sensors, so another build never resumes
-/// from it.
+/// the hash names the chassis and the model runs, so another build never resumes from it
+/// (one of the same runs through fewer sensors, or with fewer vehicles, does).
 fn work_dir_for(
     args: &Args,
     first_out: &Path,
     vehicle_hash: &str,
     fingerprint: &str,
-    sensors: &[SensorModel],
 ) -> anyhow::Result<PathBuf> {
-    let key = crate::observer::table::fnv1a_hex(
-        format!(
-            "{vehicle_hash}|{fingerprint}|{}",
-            serde_json::to_string(sensors)?
-        )
-        .as_bytes(),
-    );
+    let key =
+        crate::observer::table::fnv1a_hex(format!("{vehicle_hash}|{fingerprint}").as_bytes());
     Ok(match &args.work_dir {
         Some(d) => d.join(&key),
         None => first_out
@@ -893,7 +887,7 @@ fn model_runs(
 ) -> anyhow::Result<(Vec<Vec<TableEvent>>, PathBuf)> {
     let hash = vehicle_hash(vehicle)?;
     let fingerprint = model_fingerprint(grid, cfg)?;
-    let dir = work_dir_for(args, first_out, &hash, &fingerprint, sensors)?;
+    let dir = work_dir_for(args, first_out, &hash, &fingerprint)?;
     if !args.quiet {
         eprintln!(
             "shimmy calibrate: {} jobs x {} model events ({} in all) on {threads} threads, \

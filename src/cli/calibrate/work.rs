@@ -31,12 +31,13 @@ use crate::observer::ObserverConfig;
 /// Format tag of a work directory's manifest.
 pub const WORK_FORMAT: &str = "shimmy calibrate work v1";
 
-/// What a work directory was started for; a resumed build must match it exactly.
+/// What a work directory was started for: the chassis and the model runs
+/// ([`super::model_fingerprint`]) must match; every part holds the events of `sensors`, which
+/// a later build may use any subset of.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 struct Manifest {
     format: String,
     vehicle_hash: String,
-    /// [`super::grid_fingerprint`] without the sensor.
     grid: String,
     sensors: Vec<SensorModel>,
 }
@@ -249,8 +250,11 @@ pub struct WorkDir {
 
 impl WorkDir {
     /// Opens (creating it if needed) the work directory `dir` for a build of `manifest`; a
-    /// directory started for another build is refused.
-    fn open(dir: &Path, manifest: &Manifest) -> anyhow::Result<WorkDir> {
+    /// directory started for another chassis or other model runs is refused, and one started
+    /// for other sensors unless they include the build's. Returns the directory and the
+    /// sensors its parts hold (the build's sensors are measured through all of them, so that
+    /// every part stays complete).
+    fn open(dir: &Path, manifest: &Manifest) -> anyhow::Result<(WorkDir, Vec<SensorModel>)> {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create work directory {}", dir.display()))?;
         let mpath = dir.join("manifest.json");
@@ -259,19 +263,30 @@ impl WorkDir {
                 .with_context(|| format!("cannot read {}", mpath.display()))?;
             let old: Manifest = serde_json::from_str(&text)
                 .with_context(|| format!("{} is not a calibrate manifest", mpath.display()))?;
-            if &old != manifest {
+            let same_runs = old.format == manifest.format
+                && old.vehicle_hash == manifest.vehicle_hash
+                && old.grid == manifest.grid;
+            if !same_runs || !manifest.sensors.iter().all(|s| old.sensors.contains(s)) {
                 bail!(
                     "work directory {} belongs to another build (other vehicle, grid, detector or \
                      sensors); remove it or pass another --work-dir",
                     dir.display()
                 );
             }
-        } else {
-            write_atomic(&mpath, serde_json::to_string_pretty(manifest)?.as_bytes())?;
+            return Ok((
+                WorkDir {
+                    dir: dir.to_path_buf(),
+                },
+                old.sensors,
+            ));
         }
-        Ok(WorkDir {
-            dir: dir.to_path_buf(),
-        })
+        write_atomic(&mpath, serde_json::to_string_pretty(manifest)?.as_bytes())?;
+        Ok((
+            WorkDir {
+                dir: dir.to_path_buf(),
+            },
+            manifest.sensors.clone(),
+        ))
     }
 
     fn part_path(&self, j: Job) -> PathBuf {
@@ -335,18 +350,27 @@ pub fn run_all(
     }
     let jobs = jobs(grid);
     let per_job = grid.speed_kmh.len() * grid.decel_g.len();
-    let work = match work_dir {
-        Some(d) => Some(WorkDir::open(
-            d,
-            &Manifest {
-                format: WORK_FORMAT.into(),
-                vehicle_hash: vehicle_hash.into(),
-                grid: grid_fingerprint.into(),
-                sensors: sensors.to_vec(),
-            },
-        )?),
-        None => None,
+    let (work, measured) = match work_dir {
+        Some(d) => {
+            let (w, s) = WorkDir::open(
+                d,
+                &Manifest {
+                    format: WORK_FORMAT.into(),
+                    vehicle_hash: vehicle_hash.into(),
+                    grid: grid_fingerprint.into(),
+                    sensors: sensors.to_vec(),
+                },
+            )?;
+            (Some(w), s)
+        }
+        None => (None, sensors.to_vec()),
     };
+    // Where each of the build's sensors sits among the measured ones.
+    let pick: Vec<usize> = sensors
+        .iter()
+        .map(|s| measured.iter().position(|m| m == s).expect("a superset"))
+        .collect();
+    let sensors = &measured[..];
     let mut slots: Vec<Option<Vec<Vec<TableEvent>>>> = jobs
         .iter()
         .map(|&j| {
@@ -419,5 +443,6 @@ pub fn run_all(
             }
         }
     }
-    Ok(out)
+    // The build's sensors, in its order.
+    Ok(pick.iter().map(|&k| std::mem::take(&mut out[k])).collect())
 }
