@@ -17,6 +17,8 @@ enum Cmd {
     Decode(shimmy::cli::decode::Args),
     /// Estimate steering-joint clearance from one vehicle's CAN logs (braking events, model table).
     Estimate(shimmy::cli::estimate::Args),
+    /// Name the vehicle profile a CAN log comes from (IDs, lengths, rates, checksums), with evidence.
+    Identify(shimmy::cli::identify::Args),
     /// Build the clearance estimator's response table from the shimmy model.
     Calibrate(shimmy::cli::calibrate::Args),
     /// Workshop inspection report (HTML or JSON) from shimmyd's journal, state, or CAN logs.
@@ -31,6 +33,7 @@ fn main() {
     let result: anyhow::Result<()> = match cli.cmd {
         Cmd::Decode(a) => shimmy::cli::decode::run(a),
         Cmd::Estimate(a) => shimmy::cli::estimate::run(a),
+        Cmd::Identify(a) => shimmy::cli::identify::run(a),
         Cmd::Calibrate(a) => shimmy::cli::calibrate::run(a),
         Cmd::Report(a) => shimmy::cli::report::run(a),
         Cmd::Simulate(a) => shimmy::cli::simulate::run(a),

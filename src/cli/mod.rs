@@ -4,6 +4,7 @@
 pub mod calibrate;
 pub mod decode;
 pub mod estimate;
+pub mod identify;
 pub mod report;
 pub mod reproduce;
 pub mod simulate;
