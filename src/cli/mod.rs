@@ -3,6 +3,7 @@
 
 pub mod calibrate;
 pub mod decode;
+pub mod doctor;
 pub mod estimate;
 pub mod identify;
 pub mod report;

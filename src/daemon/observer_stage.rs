@@ -207,7 +207,7 @@ impl EventStage for ObserverStage {
     fn rejections(&self) -> Option<RejectionSummary> {
         Some(RejectionSummary {
             counts: self.obs.rejections(),
-            text: self.obs.explain_rejections(),
+            text: self.obs.explain_rejections(true),
         })
     }
 

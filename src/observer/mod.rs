@@ -249,10 +249,14 @@ impl Observer {
         }
     }
 
-    /// [`Self::rejections`] as a sentence: the counts, then the likely cause when one stands out.
-    pub fn explain_rejections(&self) -> String {
-        self.rejections()
-            .explain(&self.cfg.events, self.detector.decel_from_accel())
+    /// [`Self::rejections`] as a sentence: the counts, then the likely cause when one stands out
+    /// and, with `suggest_doctor`, a pointer to `shimmy doctor`.
+    pub fn explain_rejections(&self, suggest_doctor: bool) -> String {
+        self.rejections().explain(
+            &self.cfg.events,
+            self.detector.decel_from_accel(),
+            suggest_doctor,
+        )
     }
 
     /// The ignored brake applications kept (the first [`MAX_IGNORED_KEPT`]).
@@ -433,7 +437,7 @@ impl Observer {
             });
         }
         let rej = self.rejections();
-        let why = || self.explain_rejections();
+        let why = || self.explain_rejections(true);
         let (clearance_mm, interval_mm, detectable, below_mm, verdict) = match summary {
             None => (
                 None,

@@ -165,8 +165,8 @@ impl Rejections {
         let c = &self.ignored_by_reason;
         if self.ignored == 0 && self.recorded == 0 {
             return Some(
-                "the brake never read applied while moving: is the brake signal mapped right? \
-                 run `shimmy doctor`"
+                "the brake never read applied while moving: no braking in the log, or a brake \
+                 signal mapped wrong"
                     .into(),
             );
         }
@@ -179,14 +179,14 @@ impl Rejections {
             };
             return Some(format!(
                 "in {} of them the car read a forward acceleration of at least {} g while the \
-                 brake was applied: {src}; check with `shimmy doctor`",
+                 brake was applied: {src}",
                 c.accel_while_braking, cfg.record_min_decel_g
             ));
         }
         if c.too_light > 0 && 2 * c.too_light >= self.ignored {
             return Some(format!(
                 "the brake was applied, but the deceleration stayed below {} g: light braking \
-                 only, or a deceleration signal with the wrong scale or sign; run `shimmy doctor`",
+                 only, or a deceleration signal with the wrong scale or sign",
                 cfg.record_min_decel_g
             ));
         }
@@ -201,12 +201,16 @@ impl Rejections {
         None
     }
 
-    /// Counts and hint in one sentence (for a verdict).
-    pub fn explain(&self, cfg: &EventConfig, accel_mapped: bool) -> String {
+    /// Counts and hint in one sentence (for a verdict); with `suggest_doctor`, a hint ends by
+    /// pointing at `shimmy doctor`.
+    pub fn explain(&self, cfg: &EventConfig, accel_mapped: bool, suggest_doctor: bool) -> String {
         let mut s = self.counts_text(cfg);
         if let Some(h) = self.hint(cfg, accel_mapped) {
             s += " - ";
             s += &h;
+            if suggest_doctor {
+                s += "; check the mapping with `shimmy doctor`";
+            }
         }
         s
     }
