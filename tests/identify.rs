@@ -453,3 +453,94 @@ fn the_command_prints_the_verdict_and_its_exit_status_says_whether_it_named_a_pr
         "{help}"
     );
 }
+
+/// A copy of the reference profile in `dir/name`, with `bus` as its bus.toml when given.
+fn reference_copy(dir: &Path, name: &str, bus: Option<&str>) -> Profile {
+    let src = repo("config/vehicles/shimmy_reference");
+    let dst = dir.join(name);
+    std::fs::create_dir_all(&dst).unwrap();
+    let mut profile = std::fs::read_to_string(src.join("profile.toml"))
+        .unwrap()
+        .replace("table = \"table.json\"\n", "")
+        .replace(
+            "dbc = \"shimmy_reference.dbc\"",
+            &format!("dbc = {:?}", repo("dbc/shimmy_reference.dbc")),
+        );
+    if let Some(b) = bus {
+        profile = profile.replace(
+            "mapping = \"mapping.toml\"\n",
+            "mapping = \"mapping.toml\"\nbus = \"bus.toml\"\n",
+        );
+        std::fs::write(dst.join("bus.toml"), b).unwrap();
+    }
+    std::fs::write(dst.join("profile.toml"), profile).unwrap();
+    std::fs::copy(src.join("mapping.toml"), dst.join("mapping.toml")).unwrap();
+    Profile::load_dir(&dst).unwrap()
+}
+
+const REFERENCE_BUS: &str = "\
+[[message]]\nname = \"SAS_01\"\nperiod_ms = 10\n\
+[[message]]\nname = \"BRK_01\"\nperiod_ms = 20\n\
+[[message]]\nname = \"WHL_01\"\nperiod_ms = 20\n\
+[[message]]\nname = \"VEH_01\"\nperiod_ms = 20\n";
+
+#[test]
+fn a_bus_description_adds_its_messages_and_periods_to_the_evidence() {
+    let dir = tempfile::tempdir().unwrap();
+    let demo = repo("tests/fixtures/demo/worn_0p2mm.log");
+    let good = reference_copy(dir.path(), "with_bus", Some(REFERENCE_BUS));
+    let cat = Catalogue::of(std::slice::from_ref(&good)).unwrap();
+    let id = identify_file(&cat, &demo);
+    assert_identified(&id, "with_bus", "the demo against a profile with bus.toml");
+    let ev = id.chosen().unwrap();
+    let whl = ev.messages.iter().find(|m| m.name == "WHL_01").unwrap();
+    assert!(whl.in_bus && !whl.mapped && whl.frames > 1000, "{whl:?}");
+    assert!(ev
+        .messages
+        .iter()
+        .all(|m| m.period_ok == Some(true) && m.period_from == Some("bus.toml")));
+
+    // A bus whose steering is sent every 50 ms is not this one.
+    let slow = reference_copy(
+        dir.path(),
+        "slow_steering",
+        Some(&REFERENCE_BUS.replace("period_ms = 10", "period_ms = 50")),
+    );
+    let cat = Catalogue::of(&[slow]).unwrap();
+    let id = identify_file(&cat, &demo);
+    assert_eq!(id.verdict, Verdict::Unknown, "{}", id.summary);
+    assert!(
+        id.summary.contains("SAS_01") && id.summary.contains("50 ms"),
+        "{}",
+        id.summary
+    );
+
+    // A bus with a message the log lacks (two of them: more than a fifth absent).
+    let more = format!("{REFERENCE_BUS}[[message]]\nname = \"SHIMMY_01\"\nperiod_ms = 100\n");
+    let extra = reference_copy(dir.path(), "extra", Some(&more));
+    let cat = Catalogue::of(&[extra]).unwrap();
+    let id = identify_file(&cat, &demo);
+    assert_eq!(id.verdict, Verdict::Unknown, "{}", id.summary);
+    assert!(
+        id.summary.contains("bus.toml messages are absent"),
+        "{}",
+        id.summary
+    );
+}
+
+#[test]
+fn two_profiles_of_the_same_bus_are_ambiguous_and_the_better_described_one_wins() {
+    let dir = tempfile::tempdir().unwrap();
+    let demo = repo("tests/fixtures/demo/worn_0p2mm.log");
+    let a = reference_copy(dir.path(), "twin_a", None);
+    let b = reference_copy(dir.path(), "twin_b", None);
+    let cat = Catalogue::of(&[a.clone(), b]).unwrap();
+    let id = identify_file(&cat, &demo);
+    assert_eq!(id.verdict, Verdict::Ambiguous, "{}", id.summary);
+    assert_eq!(id.candidates, vec!["twin_a", "twin_b"]);
+    // The same twins, one with a bus description whose periods match: more evidence, named.
+    let c = reference_copy(dir.path(), "twin_c", Some(REFERENCE_BUS));
+    let cat = Catalogue::of(&[a, c]).unwrap();
+    let id = identify_file(&cat, &demo);
+    assert_identified(&id, "twin_c", "twins, one with a bus.toml");
+}

@@ -21,9 +21,12 @@
 //!   profile that declares none, at least three messages whose lengths and periods all match.
 //!
 //! The verdict: exactly one profile fits → identified; several fit with scores within 0.1 of
-//! the best → ambiguous, naming them; none fits → unknown, naming the closest profile and what
-//! did not fit. The score (−1…1) weighs every expected message's evidence (present 1, length 2,
-//! period 1, checksum 4, counter 3; contradicted evidence counts negative).
+//! the best and as much evidence (points within 5 %) → ambiguous, naming them; otherwise the
+//! best of them is identified (a profile whose `bus.toml` explains more of the log wins over
+//! one that describes less); none fits → unknown, naming the closest profile and what did not
+//! fit. The score (−1…1) weighs every expected message's evidence (present 1, length 2,
+//! period 1, checksum 4, counter 3; contradicted evidence counts negative) against the most it
+//! could have.
 //!
 //! What it is not: the decoding of signals ([`crate::signals`]) or a check that the mapping's
 //! signs and scales are right (that is `shimmy doctor`). Profiles of cars that share a bus
@@ -291,6 +294,8 @@ pub struct ProfileEvidence {
     pub fits: bool,
     pub strength: Strength,
     pub score: f64,
+    /// The score's points before normalising: how much of the log the profile explains.
+    pub points: f64,
     pub messages: Vec<MessageEvidence>,
     /// What does not fit, one line each.
     pub problems: Vec<String>,
@@ -559,22 +564,20 @@ fn profile_on_channel(fp: &Fingerprint, ch: Option<usize>, cand: usize) -> Profi
         fits,
         strength,
         score,
+        points: got,
         messages,
         problems,
         summary,
     }
 }
 
-fn rank(p: &ProfileEvidence) -> (bool, Strength, f64) {
-    (p.fits, p.strength, p.score)
-}
-
+/// Best first: fitting, then by score, then by the evidence behind it, then by name.
 fn better(a: &ProfileEvidence, b: &ProfileEvidence) -> std::cmp::Ordering {
-    let (fa, sa, xa) = rank(a);
-    let (fb, sb, xb) = rank(b);
-    fb.cmp(&fa)
-        .then(xb.total_cmp(&xa))
-        .then(sb.cmp(&sa))
+    b.fits
+        .cmp(&a.fits)
+        .then(b.score.total_cmp(&a.score))
+        .then(b.points.total_cmp(&a.points))
+        .then(b.strength.cmp(&a.strength))
         .then(a.profile.cmp(&b.profile))
 }
 
@@ -624,10 +627,15 @@ pub fn evaluate(fp: &Fingerprint) -> Identification {
             )
         }
         [best, rest @ ..] => {
+            // Equal: as good a score, and as much of the log explained (a profile whose
+            // bus.toml describes more of what the log holds wins over one describing less).
             let tied: Vec<&ProfileEvidence> = rest
                 .iter()
                 .copied()
-                .filter(|p| best.score - p.score < AMBIGUITY_MARGIN)
+                .filter(|p| {
+                    best.score - p.score < AMBIGUITY_MARGIN
+                        && p.points >= (1.0 - AMBIGUITY_MARGIN / 2.0) * best.points
+                })
                 .collect();
             if tied.is_empty() {
                 let mut s = format!("identified: {}: {}", best.label, best.summary);
