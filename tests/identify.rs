@@ -544,3 +544,64 @@ fn two_profiles_of_the_same_bus_are_ambiguous_and_the_better_described_one_wins(
     let id = identify_file(&cat, &demo);
     assert_identified(&id, "twin_c", "twins, one with a bus.toml");
 }
+
+#[test]
+fn the_frames_of_the_real_mf4_logs_are_unknown_whatever_reads_them() {
+    // The frames an MF4 reader gives (asammdf's, shipped beside each file), as candump: real
+    // OBD2/UDS and J1939 traffic of other vehicles.
+    let Some(dir) = shared_data::require("the MF4 logs' expected frames") else {
+        return;
+    };
+    use std::io::Read;
+    let cat = catalogue();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut looked = 0;
+    for e in std::fs::read_dir(dir.join("logs/mf4-css-electronics")).unwrap() {
+        let p = e.unwrap().path();
+        if !p.to_string_lossy().ends_with(".expected_frames.csv.gz") {
+            continue;
+        }
+        let mut text = String::new();
+        flate2::read::GzDecoder::new(std::fs::File::open(&p).unwrap())
+            .read_to_string(&mut text)
+            .unwrap();
+        let mut frames: Vec<Frame> = Vec::new();
+        for line in text.lines().skip(1) {
+            let c: Vec<&str> = line.split(',').collect();
+            let t: f64 = c[0].parse().unwrap();
+            let data: Vec<u8> = (0..c[6].len() / 2)
+                .map(|i| u8::from_str_radix(&c[6][2 * i..2 * i + 2], 16).unwrap())
+                .collect();
+            let (id, ext) = (c[3].parse().unwrap(), c[4] == "1");
+            let f = if data.len() <= 8 {
+                Frame::classic((t * 1e9) as i64, id, ext, &data)
+            } else {
+                Frame::fd((t * 1e9) as i64, id, ext, &data)
+            };
+            let Some(mut f) = f else {
+                continue;
+            };
+            f.set_iface(&format!("can{}", c[2]));
+            frames.push(f);
+        }
+        frames.sort_by_key(|f| f.t_ns);
+        let log = tmp.path().join("mf4.log");
+        let mut w = std::io::BufWriter::new(std::fs::File::create(&log).unwrap());
+        for f in &frames {
+            candump::write_frame(&mut w, f).unwrap();
+        }
+        w.flush().unwrap();
+        drop(w);
+        let id = identify_file(&cat, &log);
+        assert!(id.frames_read > 0, "{}", p.display());
+        assert_eq!(
+            id.verdict,
+            Verdict::Unknown,
+            "{}: {}",
+            p.display(),
+            id.summary
+        );
+        looked += 1;
+    }
+    assert_eq!(looked, 6);
+}
