@@ -19,6 +19,7 @@ pub mod analysis;
 pub mod cli;
 pub mod daemon;
 pub mod dbc;
+pub mod doctor;
 pub mod events;
 pub mod journal;
 pub mod model;

@@ -19,6 +19,10 @@ enum Cmd {
     Convert(shimmy::cli::convert::Args),
     /// Estimate steering-joint clearance from one vehicle's CAN logs (braking events, model table).
     Estimate(shimmy::cli::estimate::Args),
+    /// Name the vehicle profile a CAN log comes from (IDs, lengths, rates, checksums), with evidence.
+    Identify(shimmy::cli::identify::Args),
+    /// Check a signal mapping against a car's logs (signal consistency, braking) and name what to change.
+    Doctor(shimmy::cli::doctor::Args),
     /// Build the clearance estimator's response table from the shimmy model.
     Calibrate(shimmy::cli::calibrate::Args),
     /// Workshop inspection report (HTML or JSON) from shimmyd's journal, state, or CAN logs.
@@ -34,6 +38,8 @@ fn main() {
         Cmd::Decode(a) => shimmy::cli::decode::run(a),
         Cmd::Convert(a) => shimmy::cli::convert::run(a),
         Cmd::Estimate(a) => shimmy::cli::estimate::run(a),
+        Cmd::Identify(a) => shimmy::cli::identify::run(a),
+        Cmd::Doctor(a) => shimmy::cli::doctor::run(a),
         Cmd::Calibrate(a) => shimmy::cli::calibrate::run(a),
         Cmd::Report(a) => shimmy::cli::report::run(a),
         Cmd::Simulate(a) => shimmy::cli::simulate::run(a),

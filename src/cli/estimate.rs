@@ -17,9 +17,10 @@ use crate::observer::table::{vehicle_hash, ResponseTable};
 use crate::observer::{Observer, ObserverConfig, Report};
 use crate::profile::Profile;
 use crate::signals::mapping::MappingConfig;
-use crate::signals::{Mapper, Outcome};
+use crate::signals::{Mapper, Outcome, Update};
 use crate::source::log::LogReader;
 use crate::source::{CanSource, SourceStats};
+use crate::wire::Frame;
 
 /// Estimate steering-joint clearance from one vehicle's CAN logs.
 ///
@@ -40,6 +41,14 @@ use crate::source::{CanSource, SourceStats};
 ///   alerts          each: kind "clearance" (P(c > 0.1 mm) >= 90 %) or "shimmy_55kmh" (estimated
 ///                   steering-wheel amplitude above 0.2 deg in at least 2 of the last 5 events
 ///                   starting at 50–60 km/h), t_raised and evidence
+///   rejections      why braking gave nothing: brake applications ignored before recording,
+///                   per reason (too_slow, too_light, too_short; accel_while_braking counts
+///                   those that read a forward acceleration while the brake was applied, the
+///                   mark of an inverted acceleration sign), events recorded, used, and not
+///                   used per reason; ignored_applications lists the first 1000 ignored ones
+///   verdict         when nothing was estimated, says why and points at the likely cause
+/// --format text prints the verdict, the counts, and a `braking:` line with the rejections
+/// whenever events were rejected or none were found.
 /// Thresholds come from --config (see config/observer.toml for every key and its default).
 ///
 /// The car: --profile NAME (config/vehicles/<NAME>: its DBC, mapping, chassis and response
@@ -113,11 +122,28 @@ pub fn resolve_dbc(mapping_path: &Path, mapping: &MappingConfig) -> anyhow::Resu
     })
 }
 
-/// The profile whose bus the logs carry (`shimmy identify`), said on stderr; an error naming
-/// the evidence when none or several fit.
-fn identify_profile(logs: &[PathBuf]) -> anyhow::Result<Profile> {
-    let _ = logs;
-    bail!("no --profile or --mapping given (identifying the car from its bus is not available yet)")
+/// Seconds of the logs' traffic `shimmy estimate` fingerprints when no car is given.
+pub const IDENTIFY_SECONDS: f64 = 10.0;
+
+/// The profile whose bus the logs carry (`shimmy identify` on their first
+/// [`IDENTIFY_SECONDS`]), said on stderr; an error with the evidence when none or several fit.
+pub fn identify_profile(logs: &[PathBuf]) -> anyhow::Result<Profile> {
+    use crate::profile::identify::{identify_logs, Verdict};
+    let id = identify_logs(logs, IDENTIFY_SECONDS)?;
+    match (id.verdict, &id.profile) {
+        (Verdict::Identified, Some(name)) => {
+            eprintln!(
+                "shimmy estimate: no --profile given; identified the car from its bus: {}",
+                id.summary
+            );
+            Profile::load(name)
+        }
+        _ => bail!(
+            "no --profile or --mapping given, and the car could not be identified from its bus: \
+             {} (see `shimmy identify`; pass --profile NAME, or --mapping FILE for a custom setup)",
+            id.summary
+        ),
+    }
 }
 
 /// Loads vehicle parameters (default: MODEL.md §9).
@@ -172,42 +198,9 @@ impl Feeder {
         obs: &mut Observer,
     ) -> anyhow::Result<()> {
         while let Some(f) = src.next_frame().context("reading log")? {
-            self.stats.frames += 1;
-            let Some(u) = self.mapper.on_frame(&f) else {
-                continue;
-            };
-            self.stats.mapped_frames += 1;
-            let snap = self.mapper.snapshot(f.t_ns);
-            let brake = match (snap.brake_pressed.valid(), snap.brake_pressure_pa.valid()) {
-                (Some(b), Some(p)) => Some(b || p > self.brake_on_pa),
-                (Some(b), None) => Some(b),
-                (None, Some(p)) => Some(p > self.brake_on_pa),
-                (None, None) => None,
-            };
-            let mut s = Sample {
-                t_ns: f.t_ns,
-                brake,
-                ..Default::default()
-            };
-            match u.outcome {
-                Outcome::Accepted(ch) => {
-                    if ch.steer_angle {
-                        s.steer_rad = snap.steer_angle_rad.valid();
-                        s.steer_invalid = s.steer_rad.is_none();
-                    }
-                    if ch.speed {
-                        s.speed_mps = snap.speed_mps.valid();
-                    }
-                    if ch.accel {
-                        s.accel_mps2 = snap.accel_mps2.valid();
-                    }
-                }
-                Outcome::Rejected(_) => {
-                    self.stats.rejected_frames += 1;
-                    s.steer_invalid = Some(u.message) == self.steer_msg;
-                }
+            if let Some((s, _)) = self.sample(&f) {
+                obs.push(&s);
             }
-            obs.push(&s);
         }
         let st = src.stats();
         self.stats.log.frames += st.frames;
@@ -217,6 +210,52 @@ impl Feeder {
         self.stats.log.backwards_timestamps += st.backwards_timestamps;
         self.stats.log.dropped += st.dropped;
         Ok(())
+    }
+}
+
+impl Feeder {
+    /// One frame through the mapper: the detector sample it makes and the mapper's update, or
+    /// `None` when the frame belongs to no mapped message. Counts the frame. Allocates nothing.
+    pub fn sample(&mut self, f: &Frame) -> Option<(Sample, Update)> {
+        self.stats.frames += 1;
+        let u = self.mapper.on_frame(f)?;
+        self.stats.mapped_frames += 1;
+        let snap = self.mapper.snapshot(f.t_ns);
+        let brake = match (snap.brake_pressed.valid(), snap.brake_pressure_pa.valid()) {
+            (Some(b), Some(p)) => Some(b || p > self.brake_on_pa),
+            (Some(b), None) => Some(b),
+            (None, Some(p)) => Some(p > self.brake_on_pa),
+            (None, None) => None,
+        };
+        let mut s = Sample {
+            t_ns: f.t_ns,
+            brake,
+            ..Default::default()
+        };
+        match u.outcome {
+            Outcome::Accepted(ch) => {
+                if ch.steer_angle {
+                    s.steer_rad = snap.steer_angle_rad.valid();
+                    s.steer_invalid = s.steer_rad.is_none();
+                }
+                if ch.speed {
+                    s.speed_mps = snap.speed_mps.valid();
+                }
+                if ch.accel {
+                    s.accel_mps2 = snap.accel_mps2.valid();
+                }
+            }
+            Outcome::Rejected(_) => {
+                self.stats.rejected_frames += 1;
+                s.steer_invalid = Some(u.message) == self.steer_msg;
+            }
+        }
+        Some((s, u))
+    }
+
+    /// The signal mapper (its per-message counters, its latest snapshot).
+    pub fn mapper(&self) -> &Mapper {
+        &self.mapper
     }
 }
 
@@ -309,6 +348,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.dbc.clone(),
         ),
     };
+    let cfg_events = cfg.events.clone();
     let (report, stats) = estimate_files(&mapping_path, dbc.as_deref(), table, cfg, &args.logs)?;
     let mut out = std::io::stdout().lock();
     match args.format {
@@ -334,6 +374,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 stats.mapped_frames,
                 stats.rejected_frames
             )?;
+            let rej = &report.rejections;
+            if rej.worth_reporting() {
+                writeln!(out, "braking: {}", rej.counts_text(&cfg_events))?;
+            }
             for a in &report.alerts {
                 writeln!(
                     out,

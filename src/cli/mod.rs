@@ -4,7 +4,9 @@
 pub mod calibrate;
 pub mod convert;
 pub mod decode;
+pub mod doctor;
 pub mod estimate;
+pub mod identify;
 pub mod report;
 pub mod reproduce;
 pub mod simulate;

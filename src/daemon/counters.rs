@@ -8,6 +8,11 @@
 //! * `invalid_messages`: frames of mapped messages rejected by checksum or rolling counter, plus
 //!   message timeouts;
 //! * `events`: braking events finished.
+//!
+//! Beside them, whenever braking events are rejected or none has been found and the counts
+//! changed since the last line, a `braking:` line gives the detector's rejections per reason
+//! and the likely cause ([`super::pipeline::EventStage::rejections`]); the journal's `stop`
+//! record holds the counts as `rejections`.
 
 use serde::Serialize;
 

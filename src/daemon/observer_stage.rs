@@ -25,7 +25,7 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use super::config::Config;
-use super::pipeline::{Estimate, EventStage, EventSummary, Sample};
+use super::pipeline::{Estimate, EventStage, EventSummary, RejectionSummary, Sample};
 use crate::observer::alerts::MAX_WINDOW;
 use crate::observer::estimator::Estimator;
 use crate::observer::table::ResponseTable;
@@ -202,6 +202,13 @@ impl EventStage for ObserverStage {
 
     fn odometer_km(&mut self, km: f64) {
         self.odometer_km = km;
+    }
+
+    fn rejections(&self) -> Option<RejectionSummary> {
+        Some(RejectionSummary {
+            counts: self.obs.rejections(),
+            text: self.obs.explain_rejections(true),
+        })
     }
 
     fn save(&self) -> Option<serde_json::Value> {

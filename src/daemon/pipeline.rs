@@ -51,6 +51,13 @@ pub struct Estimate {
     pub events_used: u32,
 }
 
+/// [`EventStage::rejections`]: the counts and their explanation (counts, then the likely cause).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RejectionSummary {
+    pub counts: crate::observer::rejections::Rejections,
+    pub text: String,
+}
+
 /// The event/estimation stage of the pipeline.
 pub trait EventStage {
     /// What it is, for the start-up log line.
@@ -67,6 +74,11 @@ pub trait EventStage {
     /// What the stage needs to resume after a restart (the posterior's evidence), saved in the
     /// daemon's state file. Default: nothing.
     fn save(&self) -> Option<serde_json::Value> {
+        None
+    }
+    /// What braking produced so far: brake applications ignored and events not used, counted
+    /// per reason, with the sentence that explains them. Default: nothing to say.
+    fn rejections(&self) -> Option<RejectionSummary> {
         None
     }
     /// Resumes from what [`Self::save`] returned in an earlier run; returns a line for the log.

@@ -663,6 +663,7 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
     ));
 
     let mut last_counters = Counters::default();
+    let mut last_rejections = None;
     let mut last_log = Instant::now();
     let mut last_watchdog = Instant::now();
     let mut last_tx = Instant::now();
@@ -717,6 +718,13 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
             ));
             last_counters = now;
             last_log = Instant::now();
+            // Rejected or missing braking events, whenever their counts changed.
+            if let Some(r) = d.stage.rejections() {
+                if r.counts.worth_reporting() && last_rejections != Some(r.counts) {
+                    log(format_args!("braking: {}", r.text));
+                }
+                last_rejections = Some(r.counts);
+            }
         }
     };
     input.stop();
@@ -740,6 +748,7 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
         d.on_event(e)?;
     }
     let totals = Counters::from_stats(&input.stats(), &d.mapper.stats(), d.events);
+    let rejections = d.stage.rejections();
     let mqtt = d
         .mqtt
         .take()
@@ -749,12 +758,16 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
         "reason": if result.is_ok() { "end" } else { "error" },
         "counters": totals,
         "messages": d.mapper.stats(),
+        "rejections": rejections.as_ref().map(|r| r.counts),
         "odometer_km": d.state.odometer_km,
         "estimate": &d.state.estimate,
         "mqtt": mqtt,
     }))?;
     d.journal.sync()?;
     d.save_state()?;
+    if let Some(r) = rejections.filter(|r| r.counts.worth_reporting()) {
+        log(format_args!("braking: {}", r.text));
+    }
     log(format_args!("stopped: {totals}"));
     result
 }

@@ -120,6 +120,63 @@ pub enum Unused {
     SensorMismatch,
 }
 
+/// Why a brake application was not recorded at all (below the recording thresholds
+/// `record_min_speed_kmh`, `record_min_decel_g`, half of `min_duration_s`). One application can
+/// have several reasons.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Ignored {
+    /// Initial speed below `record_min_speed_kmh`.
+    TooSlow,
+    /// Peak deceleration below `record_min_decel_g`.
+    TooLight,
+    /// Shorter than half of `min_duration_s`.
+    TooShort,
+}
+
+/// Brake applications ignored before recording, counted per reason (an application with
+/// several reasons counts under each), plus how many of them read a forward acceleration of at
+/// least `record_min_decel_g` while the brake was applied: the mark of an acceleration signal
+/// whose sign is inverted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct IgnoredCounts {
+    pub too_slow: u64,
+    pub too_light: u64,
+    pub too_short: u64,
+    pub accel_while_braking: u64,
+}
+
+/// One brake application ignored before recording: what the detector measured, and why.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct IgnoredApplication {
+    /// Brake onset and end (s, log time).
+    pub t_start_s: f64,
+    pub t_end_s: f64,
+    /// Speed at the brake onset (km/h).
+    pub v0_kmh: f64,
+    /// Largest deceleration during the application (g; 0 when it never decelerated).
+    pub peak_decel_g: f64,
+    /// Largest forward acceleration during the application (g; 0 when it never sped up).
+    pub peak_accel_g: f64,
+    pub too_slow: bool,
+    pub too_light: bool,
+    pub too_short: bool,
+}
+
+impl IgnoredApplication {
+    /// The reasons, in a fixed order.
+    pub fn reasons(&self) -> impl Iterator<Item = Ignored> + '_ {
+        [
+            (self.too_slow, Ignored::TooSlow),
+            (self.too_light, Ignored::TooLight),
+            (self.too_short, Ignored::TooShort),
+        ]
+        .into_iter()
+        .filter(|x| x.0)
+        .map(|x| x.1)
+    }
+}
+
 /// Data quality of one event's steering signal.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct Quality {
@@ -216,6 +273,10 @@ pub struct Detector {
     finished_window: (usize, usize),
     /// Brake applications ignored (below the recording thresholds).
     pub ignored: u64,
+    /// The same, per reason.
+    pub ignored_by_reason: IgnoredCounts,
+    /// The most recent ignored application.
+    last_ignored: Option<IgnoredApplication>,
 }
 
 fn secs(t_ns: i64) -> f64 {
@@ -245,12 +306,25 @@ impl Detector {
             finished: None,
             finished_window: (0, 0),
             ignored: 0,
+            ignored_by_reason: IgnoredCounts::default(),
+            last_ignored: None,
             cfg,
         }
     }
 
     pub fn config(&self) -> &EventConfig {
         &self.cfg
+    }
+
+    /// Whether the deceleration has come from an acceleration signal (else from the speed's
+    /// derivative).
+    pub fn decel_from_accel(&self) -> bool {
+        self.from_accel
+    }
+
+    /// The most recently ignored brake application (see [`Detector::ignored`]).
+    pub fn last_ignored(&self) -> Option<&IgnoredApplication> {
+        self.last_ignored.as_ref()
     }
 
     /// Whether a brake application is being collected.
@@ -422,6 +496,23 @@ impl Detector {
             || peak < cfg.record_min_decel_g * G
             || duration_s < 0.5 * cfg.min_duration_s
         {
+            let trough = self.decel.iter().map(|x| x.1).fold(0.0f64, f64::min);
+            let app = IgnoredApplication {
+                t_start_s: secs(t_start_ns),
+                t_end_s: secs(t_end_ns),
+                v0_kmh,
+                peak_decel_g: peak / G,
+                peak_accel_g: -trough / G,
+                too_slow: v0_kmh < cfg.record_min_speed_kmh,
+                too_light: peak < cfg.record_min_decel_g * G,
+                too_short: duration_s < 0.5 * cfg.min_duration_s,
+            };
+            let c = &mut self.ignored_by_reason;
+            c.too_slow += app.too_slow as u64;
+            c.too_light += app.too_light as u64;
+            c.too_short += app.too_short as u64;
+            c.accel_while_braking += (-trough >= cfg.record_min_decel_g * G) as u64;
+            self.last_ignored = Some(app);
             self.ignored += 1;
             self.steer.clear();
             self.decel.clear();

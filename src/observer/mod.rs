@@ -18,6 +18,7 @@ pub mod estimator;
 pub mod features;
 pub mod linear;
 pub mod marginal;
+pub mod rejections;
 pub mod sensor;
 pub mod simulate;
 pub mod table;
@@ -27,10 +28,11 @@ use std::path::Path;
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
-use crate::events::{Detector, EventConfig, Sample, Unused};
+use crate::events::{Detector, EventConfig, IgnoredApplication, Sample, Unused};
 use alerts::{AlertConfig, ShimmyRule};
 use estimator::{Estimator, EstimatorConfig};
 use features::{Extractor, Features, SensorNoise};
+use rejections::{Rejections, UnusedCounts};
 use table::ResponseTable;
 
 /// config/observer.toml.
@@ -126,6 +128,12 @@ pub struct Report {
     pub events_used: u32,
     /// Brake applications ignored as too light / too slow to record.
     pub brake_applications_ignored: u64,
+    /// Brake applications ignored and events not used, counted per reason (an ignored
+    /// application can count under several reasons), and how many ignored applications read a
+    /// forward acceleration while the brake was applied.
+    pub rejections: Rejections,
+    /// The ignored applications themselves (at most [`MAX_IGNORED_KEPT`], the first ones).
+    pub ignored_applications: Vec<IgnoredApplication>,
     /// Events not kept in `events` because the report's list was full.
     pub events_dropped: u64,
     /// Events not used because their steering angle sensor is not the table's
@@ -140,6 +148,9 @@ pub struct Report {
 
 /// Most events kept in the report (memory bound).
 pub const MAX_EVENTS_KEPT: usize = 10_000;
+
+/// Most ignored brake applications kept in the report (memory bound; all are counted).
+pub const MAX_IGNORED_KEPT: usize = 1_000;
 
 /// Detector + features + estimator + alerts.
 pub struct Observer {
@@ -158,6 +169,12 @@ pub struct Observer {
     /// Events whose sensor did not match the table's, and the last one's (rate Hz, step deg).
     sensor_mismatch: u64,
     last_mismatch: (f64, f64),
+    /// Ignored brake applications kept (the first [`MAX_IGNORED_KEPT`]), and how many the
+    /// detector had ignored when last looked at.
+    ignored: Vec<IgnoredApplication>,
+    ignored_seen: u64,
+    unused: UnusedCounts,
+    used_total: u64,
 }
 
 impl Observer {
@@ -179,12 +196,17 @@ impl Observer {
             shimmy_raised: None,
             sensor_mismatch: 0,
             last_mismatch: (0.0, 0.0),
+            ignored: Vec::with_capacity(16),
+            ignored_seen: 0,
+            unused: UnusedCounts::default(),
+            used_total: 0,
             cfg,
         })
     }
 
     pub fn push(&mut self, s: &Sample) {
         let Some(fin) = self.detector.push(s) else {
+            self.note_ignored();
             return;
         };
         let (rec, feats) = Self::measure(&mut self.extractor, &self.cfg, fin);
@@ -194,10 +216,57 @@ impl Observer {
     /// Closes an event still open at the end of the input.
     pub fn finish(&mut self) {
         let Some(fin) = self.detector.flush() else {
+            self.note_ignored();
             return;
         };
         let (rec, feats) = Self::measure(&mut self.extractor, &self.cfg, fin);
         self.on_event(rec, feats);
+    }
+
+    /// Keeps the application the detector just ignored, if it ignored one.
+    fn note_ignored(&mut self) {
+        if self.detector.ignored == self.ignored_seen {
+            return;
+        }
+        self.ignored_seen = self.detector.ignored;
+        if let (true, Some(a)) = (
+            self.ignored.len() < MAX_IGNORED_KEPT,
+            self.detector.last_ignored(),
+        ) {
+            self.ignored.push(*a);
+        }
+    }
+
+    /// What braking produced so far: applications ignored, events recorded, used and not used
+    /// per reason.
+    pub fn rejections(&self) -> Rejections {
+        Rejections {
+            ignored: self.detector.ignored,
+            ignored_by_reason: self.detector.ignored_by_reason,
+            recorded: self.events_seen(),
+            used: self.used_total,
+            unused_by_reason: self.unused,
+        }
+    }
+
+    /// [`Self::rejections`] as a sentence: the counts, then the likely cause when one stands out
+    /// and, with `suggest_doctor`, a pointer to `shimmy doctor`.
+    pub fn explain_rejections(&self, suggest_doctor: bool) -> String {
+        self.rejections().explain(
+            &self.cfg.events,
+            self.detector.decel_from_accel(),
+            suggest_doctor,
+        )
+    }
+
+    /// The ignored brake applications kept (the first [`MAX_IGNORED_KEPT`]).
+    pub fn ignored_applications(&self) -> &[IgnoredApplication] {
+        &self.ignored
+    }
+
+    /// The observer's configuration.
+    pub fn config(&self) -> &ObserverConfig {
+        &self.cfg
     }
 
     /// The features of a finished event over its braking window plus the configured tail
@@ -250,6 +319,11 @@ impl Observer {
                 self.sensor_mismatch += 1;
                 self.last_mismatch = (q.sample_hz, q.quant_step_deg);
             }
+        }
+        match (used, reason) {
+            (true, _) => self.used_total += 1,
+            (false, Some(r)) => self.unused.add(r),
+            (false, None) => {}
         }
         let amp = feats.as_ref().map(|f| self.amplitude_deg(f));
         if let (true, Some(f), Some(a)) = (used, feats.as_ref(), amp) {
@@ -362,6 +436,8 @@ impl Observer {
                 }),
             });
         }
+        let rej = self.rejections();
+        let why = || self.explain_rejections(true);
         let (clearance_mm, interval_mm, detectable, below_mm, verdict) = match summary {
             None => (
                 None,
@@ -369,7 +445,11 @@ impl Observer {
                 false,
                 None,
                 if self.table.is_none() {
-                    "no response table: clearance not estimated".to_string()
+                    if rej.worth_reporting() {
+                        format!("no response table: clearance not estimated; {}", why())
+                    } else {
+                        "no response table: clearance not estimated".to_string()
+                    }
                 } else if let (true, Some(t)) = (self.sensor_mismatch > 0, self.table.as_ref()) {
                     format!(
                         "no usable braking events: {} came through a steering angle sensor \
@@ -383,7 +463,10 @@ impl Observer {
                         t.sensor.step_deg
                     )
                 } else {
-                    "no usable braking events: clearance not estimated".to_string()
+                    format!(
+                        "no usable braking events: clearance not estimated: {}",
+                        why()
+                    )
                 },
             ),
             Some((s, _)) if s.detectable => (
@@ -415,6 +498,8 @@ impl Observer {
             alerts,
             events_used: self.events.iter().filter(|e| e.used).count() as u32,
             brake_applications_ignored: self.detector.ignored,
+            rejections: rej,
+            ignored_applications: self.ignored.clone(),
             events_dropped: self.events_dropped,
             events_sensor_mismatch: self.sensor_mismatch,
             p_clearance_above_threshold: summary.map(|s| s.1),

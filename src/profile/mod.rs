@@ -21,6 +21,7 @@
 //! `profile.toml` is accepted wherever a name is.
 
 pub mod bus;
+pub mod identify;
 
 use std::path::{Path, PathBuf};
 

@@ -27,6 +27,12 @@
 //! signal = "ESP_Bremsdruck"
 //! unit = "bar"
 //!
+//! [yaw_rate]                     # optional, for `shimmy doctor`'s steering-sign check
+//! message = "ESP_02"
+//! signal = "ESP_Gierrate"
+//! sign_signal = "ESP_VZ_Gierrate"
+//! unit = "deg/s"
+//!
 //! [messages.LWI_01]              # optional per-message protection
 //! timeout_ms = 50
 //! checksum = "vw_mqb"
@@ -34,6 +40,12 @@
 //! ```
 //!
 //! Every table rejects unknown keys, so a typo fails loudly with the key named.
+//!
+//! Signs and scales: each signed quantity is positive in the monitor's convention (steering
+//! angle and yaw rate counter-clockwise seen from above, i.e. to the left; accelerations forward
+//! and to the left). `invert = true` flips a signal whose DBC counts the other way, and
+//! `scale` (default 1) multiplies the DBC's physical value before the unit conversion, for a
+//! DBC whose factor is wrong for this car. `shimmy doctor` measures both on a log.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -70,6 +82,13 @@ pub struct MappingConfig {
     /// Longitudinal acceleration (optional).
     #[serde(default)]
     pub accel: Option<AccelMap>,
+    /// Yaw rate (optional; not used by the estimate, checked against the steering angle by
+    /// `shimmy doctor`).
+    #[serde(default)]
+    pub yaw_rate: Option<YawRateMap>,
+    /// Lateral acceleration, positive to the left (optional; used by `shimmy doctor` only).
+    #[serde(default)]
+    pub lat_accel: Option<AccelMap>,
     /// Per-message protection, keyed by DBC message name.
     #[serde(default)]
     pub messages: BTreeMap<String, MessageRules>,
@@ -96,6 +115,35 @@ pub struct SteerAngleMap {
     /// Flip the sign (for DBCs whose positive direction is clockwise).
     #[serde(default)]
     pub invert: bool,
+    /// Multiplies the angle (`signal` + `fraction_signal`) before the unit conversion.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub scale: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+fn is_one(x: &f64) -> bool {
+    *x == 1.0
+}
+
+/// Yaw rate: `signal`, negated when `sign_signal` is non-zero, negated again when `invert`,
+/// times `scale`. Positive is counter-clockwise seen from above (turning left) after these
+/// rules, like the steering angle.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct YawRateMap {
+    pub message: String,
+    pub signal: String,
+    pub unit: RateUnit,
+    /// A separate sign bit (VW `ESP_VZ_Gierrate`): non-zero means negative.
+    #[serde(default)]
+    pub sign_signal: Option<String>,
+    #[serde(default)]
+    pub invert: bool,
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub scale: f64,
 }
 
 /// Vehicle speed: either one `signal`, or the mean of `wheel_signals` (all in `message`).
@@ -129,7 +177,8 @@ pub struct FlagMap {
     pub invert: bool,
 }
 
-/// Longitudinal acceleration, positive forward (braking negative) after `invert`.
+/// An acceleration: longitudinal positive forward (braking negative), lateral positive to the
+/// left, after `invert` and `scale`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AccelMap {
@@ -138,6 +187,9 @@ pub struct AccelMap {
     pub unit: AccelUnit,
     #[serde(default)]
     pub invert: bool,
+    /// Multiplies the DBC's value before the unit conversion.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub scale: f64,
 }
 
 /// How one message is protected.
@@ -169,6 +221,24 @@ impl AngleUnit {
         match self {
             AngleUnit::Deg => v.to_radians(),
             AngleUnit::Rad => v,
+        }
+    }
+}
+
+/// Angular rate units.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum RateUnit {
+    #[serde(rename = "deg/s")]
+    DegPerS,
+    #[serde(rename = "rad/s")]
+    RadPerS,
+}
+
+impl RateUnit {
+    pub fn to_si(self, v: f64) -> f64 {
+        match self {
+            RateUnit::DegPerS => v.to_radians(),
+            RateUnit::RadPerS => v,
         }
     }
 }
@@ -273,6 +343,19 @@ impl MappingConfig {
         if self.default_timeout_ms == 0 {
             bail!("default_timeout_ms: must be greater than 0");
         }
+        let scales = [
+            ("steer_angle", Some(self.steer_angle.scale)),
+            ("accel", self.accel.as_ref().map(|a| a.scale)),
+            ("yaw_rate", self.yaw_rate.as_ref().map(|a| a.scale)),
+            ("lat_accel", self.lat_accel.as_ref().map(|a| a.scale)),
+        ];
+        for (key, scale) in scales {
+            if let Some(k) = scale {
+                if !(k.is_finite() && k > 0.0) {
+                    bail!("{key}.scale: must be a positive number (use `invert` for the sign), got {k}");
+                }
+            }
+        }
         let used = self.used_messages();
         for (name, rules) in &self.messages {
             if rules.timeout_ms == Some(0) {
@@ -297,6 +380,8 @@ impl MappingConfig {
             self.brake_pressure.as_ref().map(|b| b.message.as_str()),
             self.brake_pressed.as_ref().map(|b| b.message.as_str()),
             self.accel.as_ref().map(|a| a.message.as_str()),
+            self.yaw_rate.as_ref().map(|a| a.message.as_str()),
+            self.lat_accel.as_ref().map(|a| a.message.as_str()),
         ];
         for m in all.into_iter().flatten() {
             if !v.contains(&m) {

@@ -1,6 +1,7 @@
 //! Vehicle signals: turns decoded CAN frames into the few quantities the monitor needs — the
 //! steering-wheel angle δ_sw (MODEL.md §8), the braking state (§6: brake pressure and/or pedal
-//! flag), the vehicle speed v and, optionally, the longitudinal acceleration — in SI units, each
+//! flag), the vehicle speed v and, optionally, the longitudinal acceleration, and for `shimmy
+//! doctor`'s consistency checks the yaw rate and the lateral acceleration — in SI units, each
 //! with its validity.
 //!
 //! * [`mapping`]: the per-vehicle TOML file naming DBC messages/signals, compositions, units and
@@ -34,7 +35,7 @@ use crate::dbc::{Database, Message, Signal};
 use crate::wire::{Frame, FrameKind};
 
 use checksum::{ChecksumError, ChecksumKind};
-use mapping::{AccelUnit, AngleUnit, MappingConfig, PressureUnit, SpeedUnit};
+use mapping::{AccelUnit, AngleUnit, MappingConfig, PressureUnit, RateUnit, SpeedUnit};
 
 /// Whether a quantity can be used now.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -93,6 +94,10 @@ pub struct VehicleSignals {
     pub brake_pressed: Reading<bool>,
     /// Longitudinal acceleration, positive forward (m/s²).
     pub accel_mps2: Reading<f64>,
+    /// Yaw rate, positive counter-clockwise seen from above (rad/s).
+    pub yaw_rate_radps: Reading<f64>,
+    /// Lateral acceleration, positive to the left (m/s²).
+    pub lat_accel_mps2: Reading<f64>,
 }
 
 /// Which quantities a frame updated.
@@ -103,6 +108,8 @@ pub struct Changed {
     pub brake_pressure: bool,
     pub brake_pressed: bool,
     pub accel: bool,
+    pub yaw_rate: bool,
+    pub lat_accel: bool,
 }
 
 /// Why a frame of a mapped message was not used.
@@ -216,7 +223,18 @@ struct SteerQ {
     fraction: Option<Sig>,
     sign: Option<Sig>,
     invert: bool,
+    scale: f64,
     unit: AngleUnit,
+}
+
+#[derive(Clone, Debug)]
+struct YawQ {
+    slot: usize,
+    sig: Sig,
+    sign: Option<Sig>,
+    invert: bool,
+    scale: f64,
+    unit: RateUnit,
 }
 
 #[derive(Clone, Debug)]
@@ -253,6 +271,14 @@ struct AccelQ {
     sig: Sig,
     unit: AccelUnit,
     invert: bool,
+    scale: f64,
+}
+
+impl AccelQ {
+    fn value(&self, data: &[u8]) -> Option<f64> {
+        let v = self.unit.to_si(self.scale * self.sig.phys(data)?);
+        Some(if self.invert { -v } else { v })
+    }
 }
 
 /// Values decoded from one frame before they are committed (all or nothing).
@@ -263,6 +289,8 @@ struct Pending {
     pressure: Option<f64>,
     pressed: Option<bool>,
     accel: Option<f64>,
+    yaw: Option<f64>,
+    lat: Option<f64>,
 }
 
 /// Interprets frames according to a [`MappingConfig`] resolved against a [`Database`].
@@ -275,11 +303,15 @@ pub struct Mapper {
     pressure: Option<PressureQ>,
     pressed: Option<FlagQ>,
     accel: Option<AccelQ>,
+    yaw: Option<YawQ>,
+    lat: Option<AccelQ>,
     v_steer: Option<Sample<f64>>,
     v_speed: Option<Sample<f64>>,
     v_pressure: Option<Sample<f64>>,
     v_pressed: Option<Sample<bool>>,
     v_accel: Option<Sample<f64>>,
+    v_yaw: Option<Sample<f64>>,
+    v_lat: Option<Sample<f64>>,
     warnings: Vec<String>,
     /// Latest frame time seen (drives timeouts).
     now_ns: Option<i64>,
@@ -381,7 +413,7 @@ impl<'a> Resolver<'a> {
         let u = sig.signal.unit.trim();
         let known = [
             "deg", "rad", "km/h", "kph", "kmh", "m/s", "mph", "bar", "pa", "kpa", "m/s^2", "m/s2",
-            "g",
+            "g", "deg/s", "rad/s",
         ];
         let ul = u.to_ascii_lowercase();
         if known.contains(&ul.as_str()) && !accepted.iter().any(|a| a.eq_ignore_ascii_case(u)) {
@@ -413,6 +445,13 @@ fn pressure_units(u: PressureUnit) -> (&'static str, &'static [&'static str]) {
         PressureUnit::Bar => ("bar", &["bar"]),
         PressureUnit::Pa => ("Pa", &["pa"]),
         PressureUnit::KPa => ("kPa", &["kpa"]),
+    }
+}
+
+fn rate_units(u: RateUnit) -> (&'static str, &'static [&'static str]) {
+    match u {
+        RateUnit::DegPerS => ("deg/s", &["deg/s"]),
+        RateUnit::RadPerS => ("rad/s", &["rad/s"]),
     }
 }
 
@@ -455,6 +494,7 @@ impl Mapper {
             fraction,
             sign,
             invert: s.invert,
+            scale: s.scale,
             unit: s.unit,
         };
 
@@ -509,17 +549,41 @@ impl Mapper {
             }
             None => None,
         };
-        let accel = match &cfg.accel {
-            Some(a) => {
-                let (slot, msg) = r.slot("accel.message", &a.message)?;
-                let sig = r.signal("accel.signal", msg, &a.signal)?;
-                let (name, ok) = accel_units(a.unit);
-                r.check_unit("accel.unit", &sig, name, ok);
-                Some(AccelQ {
+        let mut accel_q = |key: &str, a: &Option<mapping::AccelMap>| -> anyhow::Result<_> {
+            let Some(a) = a else {
+                return Ok(None);
+            };
+            let (slot, msg) = r.slot(&format!("{key}.message"), &a.message)?;
+            let sig = r.signal(&format!("{key}.signal"), msg, &a.signal)?;
+            let (name, ok) = accel_units(a.unit);
+            r.check_unit(&format!("{key}.unit"), &sig, name, ok);
+            Ok(Some(AccelQ {
+                slot,
+                sig,
+                unit: a.unit,
+                invert: a.invert,
+                scale: a.scale,
+            }))
+        };
+        let accel = accel_q("accel", &cfg.accel)?;
+        let lat = accel_q("lat_accel", &cfg.lat_accel)?;
+        let yaw = match &cfg.yaw_rate {
+            Some(y) => {
+                let (slot, msg) = r.slot("yaw_rate.message", &y.message)?;
+                let sig = r.signal("yaw_rate.signal", msg, &y.signal)?;
+                let (name, ok) = rate_units(y.unit);
+                r.check_unit("yaw_rate.unit", &sig, name, ok);
+                let sign = match &y.sign_signal {
+                    Some(s) => Some(r.signal("yaw_rate.sign_signal", msg, s)?),
+                    None => None,
+                };
+                Some(YawQ {
                     slot,
                     sig,
-                    unit: a.unit,
-                    invert: a.invert,
+                    sign,
+                    invert: y.invert,
+                    scale: y.scale,
+                    unit: y.unit,
                 })
             }
             None => None,
@@ -534,11 +598,15 @@ impl Mapper {
             pressure,
             pressed,
             accel,
+            yaw,
+            lat,
             v_steer: None,
             v_speed: None,
             v_pressure: None,
             v_pressed: None,
             v_accel: None,
+            v_yaw: None,
+            v_lat: None,
             warnings: r.warnings,
             now_ns: None,
             ignored_frames: 0,
@@ -677,7 +745,7 @@ impl Mapper {
             if st.invert {
                 v = -v;
             }
-            p.steer = Some(st.unit.to_si(v));
+            p.steer = Some(st.unit.to_si(st.scale * v));
         }
         let sp = &self.speed;
         if sp.slot == i {
@@ -705,8 +773,26 @@ impl Mapper {
         }
         if let Some(q) = &self.accel {
             if q.slot == i {
-                let v = q.unit.to_si(q.sig.phys(data)?);
-                p.accel = Some(if q.invert { -v } else { v });
+                p.accel = Some(q.value(data)?);
+            }
+        }
+        if let Some(q) = &self.lat {
+            if q.slot == i {
+                p.lat = Some(q.value(data)?);
+            }
+        }
+        if let Some(q) = &self.yaw {
+            if q.slot == i {
+                let mut v = q.sig.phys(data)?;
+                if let Some(sg) = &q.sign {
+                    if sg.phys(data)? != 0.0 {
+                        v = -v;
+                    }
+                }
+                if q.invert {
+                    v = -v;
+                }
+                p.yaw = Some(q.unit.to_si(q.scale * v));
             }
         }
         Some(p)
@@ -737,6 +823,14 @@ impl Mapper {
         if let Some(v) = p.accel {
             self.v_accel = Some(Sample { value: v, t_ns });
             c.accel = true;
+        }
+        if let Some(v) = p.yaw {
+            self.v_yaw = Some(Sample { value: v, t_ns });
+            c.yaw_rate = true;
+        }
+        if let Some(v) = p.lat {
+            self.v_lat = Some(Sample { value: v, t_ns });
+            c.lat_accel = true;
         }
         c
     }
@@ -771,6 +865,14 @@ impl Mapper {
             },
             accel_mps2: match &self.accel {
                 Some(q) => self.reading(q.slot, self.v_accel, t_ns),
+                None => Reading::not_mapped(),
+            },
+            yaw_rate_radps: match &self.yaw {
+                Some(q) => self.reading(q.slot, self.v_yaw, t_ns),
+                None => Reading::not_mapped(),
+            },
+            lat_accel_mps2: match &self.lat {
+                Some(q) => self.reading(q.slot, self.v_lat, t_ns),
                 None => Reading::not_mapped(),
             },
         }
