@@ -2,8 +2,7 @@
 //! * every form of the real RAV4 drive (candump bus 0, all buses, ASC, BLF) → `toyota_rav4`;
 //! * real logs of other vehicles and loggers (CSS Electronics MF4, python-can fixtures; what
 //!   the log reader cannot read gives no frames) → unknown;
-//! * firmware-sim logs of a profile's bus → that profile ([`FIRMWARE_SIM`]: the reference bus
-//!   today; add a profile's entry there when firmware-sim emulates its bus);
+//! * firmware-sim logs of every profile's bus → that profile ([`FIRMWARE_SIM`]);
 //! * synthetic buses of the VW, Honda and Hyundai profiles, every mapped message packed with the
 //!   DBC encoder, valid counters and checksums, at plausible rates → their profile; the same
 //!   with checksums corrupted, with counters frozen, or with the IDs and lengths only (random
@@ -159,10 +158,48 @@ fn real_logs_of_other_vehicles_and_loggers_are_unknown() {
 
 /// Logs firmware-sim writes for a profile's bus: (profile, firmware-sim arguments). When
 /// firmware-sim emulates another profile's bus, add its line here.
-const FIRMWARE_SIM: &[(&str, &[&str])] = &[(
-    "shimmy_reference",
-    &["--scenario", "config/scenarios/worn_0p2mm.toml"],
-)];
+const FIRMWARE_SIM: &[(&str, &[&str])] = &[
+    (
+        "shimmy_reference",
+        &["--scenario", "config/scenarios/worn_0p2mm.toml"],
+    ),
+    (
+        "toyota_rav4",
+        &[
+            "--scenario",
+            "config/scenarios/worn_0p2mm.toml",
+            "--profile",
+            "toyota_rav4",
+        ],
+    ),
+    (
+        "vw_mqb",
+        &[
+            "--scenario",
+            "config/scenarios/worn_0p1mm.toml",
+            "--profile",
+            "vw_mqb",
+        ],
+    ),
+    (
+        "honda_civic",
+        &[
+            "--scenario",
+            "config/scenarios/worn_0p4mm.toml",
+            "--profile",
+            "honda_civic",
+        ],
+    ),
+    (
+        "hyundai_kia",
+        &[
+            "--scenario",
+            "config/scenarios/new_car.toml",
+            "--profile",
+            "hyundai_kia",
+        ],
+    ),
+];
 
 #[test]
 fn firmware_sim_logs_are_their_profile() {
@@ -466,12 +503,10 @@ fn reference_copy(dir: &Path, name: &str, bus: Option<&str>) -> Profile {
             "dbc = \"shimmy_reference.dbc\"",
             &format!("dbc = {:?}", repo("dbc/shimmy_reference.dbc")),
         );
-    if let Some(b) = bus {
-        profile = profile.replace(
-            "mapping = \"mapping.toml\"\n",
-            "mapping = \"mapping.toml\"\nbus = \"bus.toml\"\n",
-        );
-        std::fs::write(dst.join("bus.toml"), b).unwrap();
+    // The shipped profile names its bus.toml; the copy gets the one given, or none.
+    match bus {
+        Some(b) => std::fs::write(dst.join("bus.toml"), b).unwrap(),
+        None => profile = profile.replace("bus = \"bus.toml\"\n", ""),
     }
     std::fs::write(dst.join("profile.toml"), profile).unwrap();
     std::fs::copy(src.join("mapping.toml"), dst.join("mapping.toml")).unwrap();

@@ -14,7 +14,9 @@
 //! A profile **fits** a log when, on one bus channel,
 //! * every message its mapping reads is present, and at least 80 % of its `bus.toml` messages;
 //! * every present message has the DBC's payload length in at least 90 % of its frames, and
-//!   the expected period within a factor of 1.5 where one is known and measurable;
+//!   the expected period within a factor of 1.5 where one is known and measurable (at least
+//!   five expected periods of frames seen: a slow message also sent on events looks fast in
+//!   a window that holds only one or two of its cycles);
 //! * every declared checksum verifies on at least 90 % of the frames, every declared counter
 //!   advances by one in at least 80 % of the steps (where at least 5 frames were seen);
 //! * and something strong confirms it: at least one checksum or counter verified, or, for a
@@ -56,6 +58,8 @@ pub const CHECKSUM_MIN_FRACTION: f64 = 0.9;
 pub const COUNTER_MIN_FRACTION: f64 = 0.8;
 /// Frames needed before a checksum or counter is judged.
 pub const MIN_CHECKED: u64 = 5;
+/// A period is compared only when the frames seen span at least this many expected periods.
+const MIN_CYCLES_FOR_PERIOD: f64 = 5.0;
 /// A measured period within this factor of the expected one matches.
 pub const PERIOD_FACTOR: f64 = 1.5;
 /// Minimum share of a `bus.toml`'s messages present.
@@ -401,7 +405,13 @@ fn message_evidence(fp: &Fingerprint, ch: usize, cand: usize, mi: usize) -> Mess
         ));
     }
     e.period_ms_measured = s.period_ms();
-    if let (Some(want), Some(got)) = (m.period_ms, e.period_ms_measured) {
+    // A period is judged only over several of its cycles: a slow message that is also sent on
+    // events (a gear change) looks fast in a window that holds one or two of its cycles.
+    let span_ms = s.intervals.iter().sum::<i64>() as f64 * 1e-6;
+    let judged = m
+        .period_ms
+        .filter(|&want| span_ms >= MIN_CYCLES_FOR_PERIOD * want);
+    if let (Some(want), Some(got)) = (judged, e.period_ms_measured) {
         let ok = got <= want * PERIOD_FACTOR && got >= want / PERIOD_FACTOR;
         e.period_ok = Some(ok);
         if !ok {
@@ -733,7 +743,7 @@ pub fn identify_logs_with(
     if id.frames_read == 0 && malformed > 0 {
         id.summary = format!(
             "unknown: no frames read; the log reader could not parse {malformed} line(s) or \
-             record(s) (it reads candump -L, Vector ASC and BLF)"
+             record(s) (it reads candump -L, Vector ASC, BLF and MF4)"
         );
     }
     id.not_loaded = cat.not_loaded.clone();
