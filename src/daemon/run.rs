@@ -87,6 +87,9 @@ enum Input {
         released: Duration,
     },
     Live {
+        /// Frames read before the pipeline started (while the car was identified), handed
+        /// over first.
+        pending: VecDeque<Frame>,
         rx: mpsc::Receiver<Frame>,
         stats: Vec<Arc<std::sync::Mutex<SourceStats>>>,
         stops: Vec<Arc<AtomicBool>>,
@@ -165,6 +168,9 @@ impl Input {
                     }
                 }
             },
+            Input::Live { pending, .. } if !pending.is_empty() => {
+                Ok(Feed::Frame(pending.pop_front().expect("not empty")))
+            }
             Input::Live { rx, .. } => match rx.recv_timeout(Duration::from_millis(200)) {
                 Ok(f) => Ok(Feed::Frame(f)),
                 Err(mpsc::RecvTimeoutError::Timeout) => Ok(Feed::Idle),
@@ -212,13 +218,14 @@ impl Input {
 }
 
 #[cfg(target_os = "linux")]
-fn open_live(ifaces: &[String], ids: &[(u32, bool)]) -> anyhow::Result<Input> {
+/// Opens the interfaces for reading; `ids` the kernel filter (`None`: every frame).
+fn open_live(ifaces: &[String], ids: Option<&[(u32, bool)]>) -> anyhow::Result<Input> {
     use crate::source::socketcan::{FilterId, LiveConfig, LiveSource};
     let (tx, rx) = mpsc::sync_channel::<Frame>(16_384);
     let (mut stats, mut stops, mut threads) = (Vec::new(), Vec::new(), Vec::new());
     for name in ifaces {
         let mut cfg = LiveConfig::new(name);
-        cfg.ids = Some(
+        cfg.ids = ids.map(|ids| {
             ids.iter()
                 .map(|&(id, ext)| {
                     if ext {
@@ -227,8 +234,8 @@ fn open_live(ifaces: &[String], ids: &[(u32, bool)]) -> anyhow::Result<Input> {
                         FilterId::standard(id)
                     }
                 })
-                .collect(),
-        );
+                .collect()
+        });
         let mut src = LiveSource::open_waiting(cfg)
             .with_context(|| format!("input.interfaces: cannot open {name}"))?;
         let st = Arc::new(std::sync::Mutex::new(SourceStats::default()));
@@ -260,6 +267,7 @@ fn open_live(ifaces: &[String], ids: &[(u32, bool)]) -> anyhow::Result<Input> {
         );
     }
     Ok(Input::Live {
+        pending: VecDeque::new(),
         rx,
         stats,
         stops,
@@ -268,7 +276,7 @@ fn open_live(ifaces: &[String], ids: &[(u32, bool)]) -> anyhow::Result<Input> {
 }
 
 #[cfg(not(target_os = "linux"))]
-fn open_live(_: &[String], _: &[(u32, bool)]) -> anyhow::Result<Input> {
+fn open_live(_: &[String], _: Option<&[(u32, bool)]>) -> anyhow::Result<Input> {
     bail!("input.interfaces: live SocketCAN input needs Linux")
 }
 
@@ -390,6 +398,16 @@ impl Daemon {
                 "estimate": est,
             }))?;
         }
+        // The event first, then the alerts it raised or cleared.
+        log(format_args!(
+            "braking event at {:.2} s: {:.1} km/h, {:.2} g, amplitude {}, {}",
+            e.t_start,
+            e.v0_kmh,
+            e.decel_g,
+            e.sw_amplitude_deg
+                .map_or("n/a".to_string(), |a| format!("{a:.3} deg")),
+            if e.used { "used" } else { "not used" }
+        ));
         let transitions = self
             .state
             .alerts
@@ -405,15 +423,6 @@ impl Daemon {
             self.journal
                 .append(&json!({ "type": "alert", "transition": what, "alert": a }))?;
         }
-        log(format_args!(
-            "braking event at {:.2} s: {:.1} km/h, {:.2} g, amplitude {}, {}",
-            e.t_start,
-            e.v0_kmh,
-            e.decel_g,
-            e.sw_amplitude_deg
-                .map_or("n/a".to_string(), |a| format!("{a:.3} deg")),
-            if e.used { "used" } else { "not used" }
-        ));
         self.publish_event(&e, est.as_ref(), &transitions)?;
         self.state.estimate = est;
         self.state.push_event(e);
@@ -477,9 +486,79 @@ impl Daemon {
     }
 }
 
+/// Seconds of traffic looked at to identify the car when the configuration names none.
+pub const IDENTIFY_SECONDS: f64 = 10.0;
+/// Most frames kept while identifying a live bus (they are processed afterwards).
+const IDENTIFY_MAX_FRAMES: usize = 200_000;
+
+/// The car of a configuration that names none (no `input.profile`, no `dbc`/`mapping`): the
+/// profile whose bus the replayed logs or the live interfaces carry ([`crate::profile::identify`],
+/// the first [`IDENTIFY_SECONDS`] of traffic), said in the log. Live, the interfaces stay open
+/// (unfiltered) and the frames read while identifying are returned with them, so none is lost.
+fn identify_car(cfg: &Config, replay: &[PathBuf]) -> anyhow::Result<(PathBuf, Option<Input>)> {
+    use crate::profile::identify::{identify_frames, identify_logs, Catalogue, Options, Verdict};
+    let (id, input) = if !replay.is_empty() {
+        (identify_logs(replay, IDENTIFY_SECONDS)?, None)
+    } else {
+        log(format_args!(
+            "no car configured (input.profile): identifying it from {} s of traffic on {}",
+            IDENTIFY_SECONDS,
+            cfg.input.interfaces.join(", ")
+        ));
+        let mut input = open_live(&cfg.input.interfaces, None)?;
+        let never = AtomicBool::new(false);
+        let t0 = Instant::now();
+        let mut frames = VecDeque::new();
+        while t0.elapsed().as_secs_f64() < IDENTIFY_SECONDS && frames.len() < IDENTIFY_MAX_FRAMES {
+            match input.next(&never)? {
+                Feed::Frame(f) => frames.push_back(f),
+                Feed::Idle => {}
+                Feed::End => break,
+            }
+        }
+        let cat = Catalogue::search_path();
+        let opts = Options {
+            max_seconds: IDENTIFY_SECONDS,
+            ..Options::default()
+        };
+        let id = identify_frames(&cat, frames.iter().cloned(), opts);
+        if let Input::Live { pending, .. } = &mut input {
+            *pending = frames;
+        }
+        (id, Some(input))
+    };
+    match (id.verdict, &id.profile) {
+        (Verdict::Identified, Some(name)) => {
+            log(format_args!("car identified from its bus: {}", id.summary));
+            Ok((crate::profile::find(name)?, input))
+        }
+        _ => bail!(
+            "input.profile: no car configured, and none identified from its bus: {} (set \
+             input.profile, or input.dbc and input.mapping; see `shimmy identify`)",
+            id.summary
+        ),
+    }
+}
+
 /// Runs the daemon until the input ends (replay) or SIGTERM/SIGINT.
 pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
     let mut cfg = Config::load_with_profile(&opts.config, opts.profile.as_deref())?;
+    let replay = if opts.replay.is_empty() {
+        cfg.input.replay.clone()
+    } else {
+        opts.replay.clone()
+    };
+    if replay.is_empty() && cfg.input.interfaces.is_empty() {
+        bail!("input.interfaces: no interface configured and nothing to replay (give --replay LOG or set input.interfaces)");
+    }
+    let live = replay.is_empty();
+    // No car configured: identify it from its bus, then load the profile found.
+    let mut opened = None;
+    if cfg.bus_files().is_none() {
+        let (dir, input) = identify_car(&cfg, &replay)?;
+        cfg = Config::load_with_profile(&opts.config, Some(&dir.display().to_string()))?;
+        opened = input;
+    }
     if let Some(j) = &opts.journal_dir {
         cfg.outputs.journal_dir = j.clone();
     }
@@ -525,16 +604,6 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
         .stats()
         .iter()
         .position(|m| m.name == mapping.steer_angle.message);
-
-    let replay = if opts.replay.is_empty() {
-        cfg.input.replay.clone()
-    } else {
-        opts.replay.clone()
-    };
-    if replay.is_empty() && cfg.input.interfaces.is_empty() {
-        bail!("input.interfaces: no interface configured and nothing to replay (give --replay LOG or set input.interfaces)");
-    }
-    let live = replay.is_empty();
 
     let state_dir = opts
         .state_dir
@@ -582,8 +651,11 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
     }
     let last_speed = st.last_speed;
 
-    let mut input = if live {
-        open_live(&cfg.input.interfaces, mapper.needed_ids())?
+    let mut input = if let Some(input) = opened {
+        // Opened unfiltered to identify the car; the frames read meanwhile come first.
+        input
+    } else if live {
+        open_live(&cfg.input.interfaces, Some(mapper.needed_ids()))?
     } else {
         Input::Replay {
             logs: replay.iter().cloned().collect(),
