@@ -31,6 +31,12 @@ fn every_shipped_profile_loads_and_its_mapping_fits_its_dbc() {
         let (db, _) = Database::load(&p.dbc_path).unwrap();
         Mapper::new(&db, &p.mapping).unwrap_or_else(|e| panic!("{name}: {e:#}"));
         p.sensor.validate().unwrap();
+        // Out of the box: the profile ships its table, built for its chassis, prior and sensor.
+        let t = p
+            .load_table()
+            .unwrap_or_else(|e| panic!("{name}: {e:#}"))
+            .unwrap_or_else(|| panic!("{name}: no table"));
+        assert_eq!(t.sensor, p.sensor, "{name}");
     }
 }
 
