@@ -37,8 +37,17 @@ fn main() {
         let t0 = thread_cpu_s();
         for (iv, &v) in speeds.iter().enumerate().skip(ic % 5).step_by(5) {
             for &d in &decels {
-                simulate_event(&p, c * 1e-3, v, d, seeds[iv], EventShape::DRIVE, &reference, &cfg)
-                    .expect("model event");
+                simulate_event(
+                    &p,
+                    c * 1e-3,
+                    v,
+                    d,
+                    seeds[iv],
+                    EventShape::DRIVE,
+                    &reference,
+                    &cfg,
+                )
+                .expect("model event");
                 n_one += 1;
             }
         }
@@ -69,16 +78,30 @@ fn main() {
         }
         cpu_second += thread_cpu_s() - t0;
         periods += grid.control_periods;
-        periods_alone += grid.runs.iter().flatten().map(|r| r.sw_rad.len()).sum::<usize>();
+        periods_alone += grid
+            .runs
+            .iter()
+            .flatten()
+            .map(|r| r.sw_rad.len())
+            .sum::<usize>();
     }
     let one = cpu_one / n_one as f64;
     let grid = cpu_grid / n_grid as f64;
     let second = cpu_second / n_grid as f64;
     println!("model events: {n_one} one at a time, {n_grid} on the grid");
-    println!("CPU per event, one at a time:            {:.1} ms", one * 1e3);
-    println!("CPU per event, shared pull-away (grid):  {:.1} ms", grid * 1e3);
+    println!(
+        "CPU per event, one at a time:            {:.1} ms",
+        one * 1e3
+    );
+    println!(
+        "CPU per event, shared pull-away (grid):  {:.1} ms",
+        grid * 1e3
+    );
     println!("ratio:                                   {:.2}", one / grid);
-    println!("CPU per event, a second sensor:          {:.2} ms", second * 1e3);
+    println!(
+        "CPU per event, a second sensor:          {:.2} ms",
+        second * 1e3
+    );
     println!(
         "model time (1 ms control periods): {periods} on the grid, {periods_alone} if each event ran alone ({:.2}x)",
         periods_alone as f64 / periods as f64

@@ -291,6 +291,12 @@ struct LogOut {
 impl LogOut {
     fn create(out: &Path) -> anyhow::Result<LogOut> {
         use shimmy::source::writer::{LogWriter, OutFormat};
+        if out.as_os_str() != "-" {
+            if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("cannot create directory {}", dir.display()))?;
+            }
+        }
         if out.as_os_str() != "-" && OutFormat::from_path(out) != OutFormat::Candump {
             let w = LogWriter::create(out, Default::default())
                 .with_context(|| format!("cannot create log {}", out.display()))?;
