@@ -72,6 +72,12 @@ pub struct FleetArgs {
     /// FILE`).
     #[arg(long, value_name = "FILE")]
     pub vehicle: Option<PathBuf>,
+    /// Simulate the vehicles around this vehicle (TOML, MODEL.md §9 keys) instead, while the
+    /// table and the estimate stay the nominal vehicle's: a fleet of cars that are not the
+    /// table's model (e.g. a plant with the §15 steering column scored with a 5-DOF table), to
+    /// see what the observer says when its model does not fit.
+    #[arg(long, value_name = "FILE")]
+    pub plant: Option<PathBuf>,
     #[arg(long, default_value_t = 40)]
     pub vehicles: usize,
     #[arg(long, default_value_t = 30)]
@@ -208,6 +214,8 @@ impl Nominal {
 pub struct Setup {
     pub profile: Option<Profile>,
     pub nominal: Nominal,
+    /// `--plant`: what the vehicles are drawn around when it is not the nominal vehicle.
+    pub plant: Option<Nominal>,
     pub db: Database,
     pub bus: BusSpec,
     /// The DBC the estimate decodes with (`None`: the one the mapping names, the reference).
@@ -222,6 +230,15 @@ impl Setup {
             None => None,
         };
         let nominal = Nominal::load_or(args, profile.as_ref())?;
+        let plant = match &args.plant {
+            Some(p) => {
+                let params = VehicleParams::from_toml_file(p)
+                    .with_context(|| format!("--plant {}", p.display()))?;
+                let hash = vehicle_hash(&params)?;
+                Some(Nominal { params, hash })
+            }
+            None => None,
+        };
         let (db, bus, dbc_path) = match &profile {
             Some(p) => {
                 let (db, bus) = crate::bus::profile_bus(p, args.dbc.as_deref())?;
@@ -249,6 +266,7 @@ impl Setup {
         Ok(Setup {
             profile,
             nominal,
+            plant,
             db,
             bus,
             dbc_path,
@@ -278,6 +296,8 @@ pub struct VehicleResult {
     /// Posterior probability that the wheels' phase difference stayed the same (phase
     /// "either").
     pub p_wheel_phase_fixed: Option<f64>,
+    /// The estimator's goodness-of-fit check (src/observer/fit.rs).
+    pub model_fit: Option<shimmy::observer::fit::ModelFit>,
     pub shimmy_alert: bool,
     /// Mean true steering-wheel amplitude of events starting at 50–60 km/h (deg).
     pub true_sw_55_deg: Option<f64>,
@@ -372,7 +392,8 @@ fn vehicle_log(
     setup: &Setup,
     dir: &Path,
 ) -> anyhow::Result<(PathBuf, EvalTruth)> {
-    let nominal = &setup.nominal;
+    // The vehicle simulated: drawn around the plant when one is given, else the nominal.
+    let nominal = setup.plant.as_ref().unwrap_or(&setup.nominal);
     let seed = args.seed_base + k as u64;
     let log = dir.join(format!("fleet_{seed}.log"));
     let eval_path = log.with_extension("eval.json");
@@ -407,7 +428,7 @@ fn vehicle_log(
         }
         if e.nominal_vehicle_hash != nominal.hash {
             anyhow::bail!(
-                "{} was written for another nominal vehicle (--vehicle)",
+                "{} was written for another nominal vehicle (--vehicle, --plant)",
                 eval_path.display()
             );
         }
@@ -557,6 +578,7 @@ fn result(
         clearance_alert: r.alerts.iter().any(|a| a.kind == "clearance"),
         p_clearance_above_threshold: r.p_clearance_above_threshold,
         p_wheel_phase_fixed: r.p_wheel_phase_fixed,
+        model_fit: r.model_fit,
         shimmy_alert: r.alerts.iter().any(|a| a.kind == "shimmy_55kmh"),
         events_55: amps.len(),
         true_sw_55_deg: if amps.is_empty() {
@@ -592,6 +614,10 @@ pub struct Scores {
     /// fewer than `shimmy_confirm` times at 50–60 km/h: the issue's "confirmed by at least 2
     /// of the last 5 such events" cannot raise the alert on them. (above 0.25°, below 0.15°)
     pub shimmy_too_few_events: (usize, usize),
+    /// The estimator said the model does not fit / vehicles with a fit check.
+    pub not_fitting: (usize, usize),
+    /// Of the vehicles whose interval misses the truth: said "does not fit" / all of them.
+    pub misses_flagged: (usize, usize),
 }
 
 /// The scores of a fleet; `shimmy_confirm` is the alert rule's confirmation count.
@@ -619,6 +645,10 @@ pub fn scores(v: &[VehicleResult], shimmy_confirm: usize) -> Scores {
             .is_some_and(|[a, b]| a <= r.clearance_true_mm && r.clearance_true_mm <= b)
     };
     let coverage = count(&|r| Some(inside(r)));
+    let not_fitting = count(&|r| r.model_fit.map(|f| !f.fits));
+    let misses_flagged = count(&|r| {
+        (r.interval_mm.is_some() && !inside(r)).then(|| r.model_fit.is_some_and(|f| !f.fits))
+    });
     let small_ok = count(&|r| {
         (r.clearance_true_mm < 0.08).then(|| {
             inside(r) || (!r.detectable && r.below_mm.is_some_and(|b| b >= r.clearance_true_mm))
@@ -653,6 +683,8 @@ pub fn scores(v: &[VehicleResult], shimmy_confirm: usize) -> Scores {
         small_ok,
         shimmy_agree,
         shimmy_too_few_events,
+        not_fitting,
+        misses_flagged,
     }
 }
 
@@ -790,6 +822,11 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
     println!(
         "c < 0.08 mm reported below / interval contains truth: {}",
         frac(s.small_ok)
+    );
+    println!(
+        "model does not fit (goodness-of-fit check): {}; of the intervals that miss: {}",
+        frac(s.not_fitting),
+        frac(s.misses_flagged)
     );
     println!(
         "shimmy_55kmh agrees with truth (>0.25 or <0.15 deg): {}",
@@ -1062,6 +1099,7 @@ mod tests {
             clearance_alert: true,
             p_clearance_above_threshold: Some(0.99),
             p_wheel_phase_fixed: None,
+            model_fit: None,
             shimmy_alert: alert,
             events_55: n55,
             true_sw_55_deg: Some(amp),

@@ -91,6 +91,9 @@ pub struct EstimatorConfig {
     /// Standard deviation (ln units) of the prior's fall-off outside `prior_range_mm`; 0 cuts
     /// it off there.
     pub prior_tail: f64,
+    /// Method "linear": the goodness-of-fit score ([`super::fit`]) above which the report
+    /// says the model does not fit the vehicle (its interval is not to be trusted).
+    pub fit_z_max: f64,
 }
 
 impl Default for EstimatorConfig {
@@ -115,9 +118,13 @@ impl Default for EstimatorConfig {
             unbalance_grid: 7,
             prior_range_mm: None,
             prior_tail: 0.0,
+            fit_z_max: FIT_Z_MAX,
         }
     }
 }
+
+/// Default of [`EstimatorConfig::fit_z_max`].
+pub const FIT_Z_MAX: f64 = 4.5;
 
 impl EstimatorConfig {
     /// Checks every setting; the error names the key as `estimator.<key>` (shimmyd prefixes
@@ -181,6 +188,7 @@ impl EstimatorConfig {
             }
         }
         non_negative("prior_tail", self.prior_tail)?;
+        positive("fit_z_max", self.fit_z_max)?;
         for (key, v) in [
             ("grid_refine", self.grid_refine),
             ("damping_grid", self.damping_grid),
@@ -528,6 +536,12 @@ impl Estimator {
 
     pub fn events_used(&self) -> u32 {
         self.events_used
+    }
+
+    /// Method "linear": the events' deviance from the table's model at its best clearance and
+    /// grid point, and its degrees of freedom ([`super::marginal::LinearPosterior::fit`]).
+    pub fn fit(&self) -> Option<(f64, f64)> {
+        self.linear.as_ref()?.fit()
     }
 
     /// Method "linear" with `phase = "either"`: the posterior probability that the wheels'

@@ -105,15 +105,22 @@ impl Stats {
         self.ld += ld;
     }
 
-    /// ln p(events | grid point) up to a constant, with prior precision `lam` (ln det `ld_lam`).
-    fn evidence(&self, lam: &MatX, ld_lam: f64) -> f64 {
+    /// ln p(events | grid point) up to a constant, with prior precision `lam` (ln det `ld_lam`),
+    /// and the events' deviance at the grid point: s − hᵀA⁻¹h, which by the Woodbury identity
+    /// is rᵀ(S + H Λ₀⁻¹ Hᵀ)⁻¹ r over all the events' residuals r, i.e. χ² with as many degrees
+    /// of freedom as features observed when the events follow the model at this point.
+    fn evidence(&self, lam: &MatX, ld_lam: f64) -> (f64, f64) {
         let a = lam + self.p;
         match a.cholesky() {
             Some(ch) => {
                 let q = self.h.dot(&ch.solve(&self.h));
-                -0.5 * (self.s - q) - 0.5 * ch.ln_determinant() + 0.5 * ld_lam - 0.5 * self.ld
+                let dev = self.s - q;
+                (
+                    -0.5 * dev - 0.5 * ch.ln_determinant() + 0.5 * ld_lam - 0.5 * self.ld,
+                    dev,
+                )
             }
-            None => f64::NEG_INFINITY,
+            None => (f64::NEG_INFINITY, f64::INFINITY),
         }
     }
 }
@@ -172,6 +179,11 @@ pub struct LinearPosterior {
     share_v: Vec<f64>,
     /// Posterior probability of hypothesis "vehicle" (NaN when only one is in use).
     p_vehicle: f64,
+    /// Features observed so far (faded with the evidence): the deviance's degrees of freedom.
+    n_obs: f64,
+    /// Smallest deviance over the clearances and grid points, after the last
+    /// [`Self::probabilities_into`].
+    min_deviance: f64,
 }
 
 /// Inverse and ln det of the masked block of `m` (unused features: zero rows and columns).
@@ -333,6 +345,8 @@ impl LinearPosterior {
             power: cfg.evidence_power,
             share_v: vec![0.0; ng],
             p_vehicle: f64::NAN,
+            n_obs: 0.0,
+            min_deviance: f64::NAN,
         })
     }
 
@@ -354,11 +368,13 @@ impl LinearPosterior {
             st.s *= f;
             st.ld *= f;
         }
+        self.n_obs *= f;
     }
 
     /// Adds one event: features `z` (ln RMS, ln peak, cruise; masked ones ignored) at initial
     /// speed `v0_kmh` and deceleration `decel_g`.
     pub fn update(&mut self, z: [f64; N_FEAT], mask: &FeatureMask, v0_kmh: f64, decel_g: f64) {
+        self.n_obs += mask.iter().filter(|&&m| m).count() as f64;
         let sp = bracket(&self.speed_kmh, v0_kmh);
         // The event's term values at every grid point: they do not depend on the clearance.
         for (b, x) in self.basis_v.iter_mut().zip(&self.points_v) {
@@ -419,20 +435,25 @@ impl LinearPosterior {
     /// (up to a constant; not raised to the evidence power).
     pub fn probabilities_into(&mut self, out: &mut [f64], log_prior: &[f64]) {
         let mut mx = f64::NEG_INFINITY;
+        let mut min_dev = f64::INFINITY;
         let (nv, ne) = (self.points_v.len(), self.points_e.len());
         for (g, o) in out.iter_mut().enumerate().take(self.pos.len()) {
             let (lam, ld_lam) = &self.prior[g];
             let mut l_v = f64::NEG_INFINITY;
             if nv > 0 {
                 for q in 0..nv {
-                    self.scratch[q] = self.stats_v[g * nv + q].evidence(lam, *ld_lam);
+                    let (l, dev) = self.stats_v[g * nv + q].evidence(lam, *ld_lam);
+                    self.scratch[q] = l;
+                    min_dev = min_dev.min(dev);
                 }
                 l_v = log_mean_exp(&self.scratch[..nv]);
             }
             let mut l_e = f64::NEG_INFINITY;
             if ne > 0 {
                 for q in 0..ne {
-                    self.scratch[q] = self.stats_e[g * ne + q].evidence(lam, *ld_lam);
+                    let (l, dev) = self.stats_e[g * ne + q].evidence(lam, *ld_lam);
+                    self.scratch[q] = l;
+                    min_dev = min_dev.min(dev);
                 }
                 l_e = log_mean_exp(&self.scratch[..ne]);
             }
@@ -450,6 +471,11 @@ impl LinearPosterior {
             *o = self.power * l + log_prior[g];
             mx = mx.max(*o);
         }
+        self.min_deviance = if min_dev.is_finite() {
+            min_dev
+        } else {
+            f64::NAN
+        };
         if !mx.is_finite() {
             out.fill(1.0 / out.len() as f64);
             return;
@@ -467,6 +493,16 @@ impl LinearPosterior {
         } else {
             f64::NAN
         };
+    }
+
+    /// How well the events fit the table's model at its best clearance and grid point, after
+    /// the last [`Self::probabilities_into`]: `(deviance, degrees of freedom)`, the deviance
+    /// being χ²-distributed with about that many degrees of freedom when the vehicle is one the
+    /// model describes (a little less: the best point is chosen by the same events). `None`
+    /// before any event.
+    pub fn fit(&self) -> Option<(f64, f64)> {
+        (self.n_obs > 0.0 && self.min_deviance.is_finite())
+            .then_some((self.min_deviance, self.n_obs))
     }
 
     /// Posterior probability that the wheels' unbalance phase difference was the same in all

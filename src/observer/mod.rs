@@ -16,6 +16,7 @@ pub mod alerts;
 pub mod emulate;
 pub mod estimator;
 pub mod features;
+pub mod fit;
 pub mod linear;
 pub mod marginal;
 pub mod rejections;
@@ -144,6 +145,9 @@ pub struct Report {
     /// phase difference stayed the same over the events (src/observer/marginal.rs).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub p_wheel_phase_fixed: Option<f64>,
+    /// Method "linear": whether the events fit the table's model (src/observer/fit.rs).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub model_fit: Option<fit::ModelFit>,
 }
 
 /// Most events kept in the report (memory bound).
@@ -487,6 +491,19 @@ impl Observer {
                 format!("below {:.2} mm ({} events)", s.below_mm, s.events_used),
             ),
         };
+        let model_fit = self.estimator.as_ref().and_then(|e| {
+            let (dev, dof) = e.fit()?;
+            Some(fit::ModelFit::new(dev, dof, e.config().fit_z_max))
+        });
+        let verdict = match model_fit {
+            Some(f) if !f.fits => format!(
+                "{verdict}; but the model does not fit this vehicle: its events scatter more                  about every clearance's prediction than the response table's vehicles do                  (goodness of fit z = {:.1} over {:.0} features, limit {:.1}), so the interval                  is not to be trusted; see docs/ACCURACY.md",
+                f.z,
+                f.dof,
+                self.estimator.as_ref().map_or(0.0, |e| e.config().fit_z_max)
+            ),
+            _ => verdict,
+        };
         Report {
             median_mm: summary.map(|s| s.0.median_mm),
             clearance_mm,
@@ -507,6 +524,7 @@ impl Observer {
                 .estimator
                 .as_ref()
                 .and_then(|e| e.phase_fixed_probability()),
+            model_fit,
         }
     }
 }

@@ -1,0 +1,77 @@
+//! Does the vehicle fit the table's model? A goodness-of-fit check on the clearance posterior.
+//!
+//! What it is: the events' deviance from the table's nuisance model at the posterior's best
+//! clearance and nuisance grid point ([`super::marginal::LinearPosterior::fit`]). For a
+//! vehicle the model describes, the deviance is χ²-distributed with about as many degrees of
+//! freedom as features observed; [`ModelFit::z`] is its Wilson–Hilferty normal score (the cube
+//! root of χ²/k is close to normal with mean 1 − 2/(9k) and variance 2/(9k)). A vehicle whose
+//! events sit further from every clearance's prediction than the events' own scatter allows (a
+//! steering that passes the wheels' motion on differently, a noise the table does not know)
+//! has a large score, and its interval is then not to be trusted: the estimator says "the model
+//! does not fit this vehicle" instead.
+//!
+//! What it is not: a test of the physics (a vehicle can fit the model's statistics and still
+//! be estimated wrong), or meaningful with a handful of events (below [`MIN_DOF`] degrees of
+//! freedom nothing is said).
+
+use serde::Serialize;
+
+/// Fewer observed features than this: no verdict.
+pub const MIN_DOF: f64 = 12.0;
+
+/// The fit check's result, in the report.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ModelFit {
+    /// The events' deviance at the best clearance and grid point.
+    pub deviance: f64,
+    /// Its degrees of freedom (features observed, faded with the evidence).
+    pub dof: f64,
+    /// Wilson–Hilferty normal score of `deviance` under χ²(`dof`).
+    pub z: f64,
+    /// False when `z` exceeds the configured limit with at least [`MIN_DOF`] degrees of freedom.
+    pub fits: bool,
+}
+
+impl ModelFit {
+    /// The check of `deviance` on `dof` degrees of freedom against the normal-score limit
+    /// `z_max`.
+    pub fn new(deviance: f64, dof: f64, z_max: f64) -> ModelFit {
+        let z = wilson_hilferty(deviance, dof);
+        ModelFit {
+            deviance,
+            dof,
+            z,
+            fits: !(dof >= MIN_DOF && z > z_max),
+        }
+    }
+}
+
+/// Normal score of `x` under χ²(`k`) (Wilson–Hilferty); 0 for k ≤ 0.
+pub fn wilson_hilferty(x: f64, k: f64) -> f64 {
+    if k <= 0.0 || !x.is_finite() {
+        return 0.0;
+    }
+    let v = 2.0 / (9.0 * k);
+    ((x.max(0.0) / k).cbrt() - (1.0 - v)) / v.sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_score_matches_chi_square_quantiles() {
+        // χ²(60): median 59.33, 99.9 % quantile 99.61 (tables).
+        assert!(wilson_hilferty(59.33, 60.0).abs() < 0.01);
+        assert!((wilson_hilferty(99.61, 60.0) - 3.09).abs() < 0.02);
+        // χ²(90): 95 % quantile 113.15.
+        assert!((wilson_hilferty(113.15, 90.0) - 1.645).abs() < 0.02);
+    }
+
+    #[test]
+    fn few_events_never_fail_the_check() {
+        assert!(ModelFit::new(1e6, MIN_DOF - 1.0, 3.0).fits);
+        assert!(!ModelFit::new(1e6, MIN_DOF, 3.0).fits);
+        assert!(ModelFit::new(60.0, 60.0, 3.0).fits);
+    }
+}
