@@ -23,6 +23,7 @@ pub mod doctor;
 pub mod events;
 pub mod journal;
 pub mod model;
+pub mod monitor;
 pub mod observer;
 pub mod profile;
 pub mod report;

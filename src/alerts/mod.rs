@@ -21,12 +21,15 @@
 //!
 //! What it is not: detection or estimation (the observer's) or delivery (journal, bus, MQTT).
 
+pub mod config;
+
 use std::collections::VecDeque;
 
 use serde::{Deserialize, Serialize};
 
-use crate::daemon::config::AlertsSection;
-use crate::daemon::pipeline::{Estimate, EventSummary};
+use crate::monitor::{Estimate, EventSummary};
+
+pub use config::AlertsSection;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

@@ -25,7 +25,7 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use super::config::Config;
-use super::pipeline::{Estimate, EventStage, EventSummary, RejectionSummary, Sample};
+use crate::monitor::{Estimate, EventStage, EventSummary, RejectionSummary, Sample};
 use crate::observer::alerts::MAX_WINDOW;
 use crate::observer::estimator::Estimator;
 use crate::observer::table::ResponseTable;
