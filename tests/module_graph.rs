@@ -6,6 +6,8 @@
 //!   ([`LAYERS`]). Every `crate::…` path and every `super::…` path that leaves its top-level
 //!   module is checked, in code only (comments and string literals are not dependencies);
 //! * every top-level module has a place in [`LAYERS`] (a new module must be placed deliberately);
+//! * every .rs file opens with a `//!` doc (after optional inner attributes);
+//! * no file cites tracker items ("issue 6 item 2"): docs say what is meant instead.
 //!
 //! Failures name the file and line.
 
@@ -475,3 +477,103 @@ fn the_checker_sees_an_arrow_running_back_up() {
     }
 }
 
+/// "issue 6", "Issue 5 item 4", "issues 5–6", "issue #12": a tracker citation, (line, text).
+fn tracker_citations(text: &str) -> Vec<(usize, String)> {
+    let mut out = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let lower = line.to_ascii_lowercase();
+        let b = lower.as_bytes();
+        let mut from = 0;
+        while let Some(k) = lower[from..].find("issue") {
+            let at = from + k;
+            from = at + 5;
+            if at > 0 && is_ident(b[at - 1]) {
+                continue;
+            }
+            let mut j = at + 5;
+            if b.get(j) == Some(&b's') {
+                j += 1;
+            }
+            let j2 = skip_ws(b, j);
+            let j2 = if b.get(j2) == Some(&b'#') { j2 + 1 } else { j2 };
+            if (j2 > j || b.get(j) == Some(&b'#')) && b.get(j2).is_some_and(u8::is_ascii_digit) {
+                out.push((n + 1, line.trim().to_string()));
+                break;
+            }
+        }
+    }
+    out
+}
+
+/// Whether a file opens with a `//!` doc, after blank lines and inner attributes (`#![…]`).
+fn opens_with_module_doc(text: &str) -> bool {
+    text.lines()
+        .map(str::trim_start)
+        .find(|l| !l.is_empty() && !l.starts_with("#!["))
+        .is_some_and(|l| l.starts_with("//!"))
+}
+
+fn all_files_under_src() -> Vec<(String, String)> {
+    library_files() // includes src/bin
+}
+
+#[test]
+fn no_file_cites_tracker_items() {
+    let bad: Vec<String> = all_files_under_src()
+        .iter()
+        .flat_map(|(rel, text)| {
+            tracker_citations(text)
+                .into_iter()
+                .map(move |(line, l)| format!("src/{rel}:{line}: {l}"))
+        })
+        .collect();
+    assert!(
+        bad.is_empty(),
+        "say what is meant instead of citing a tracker item:\n{}",
+        bad.join("\n")
+    );
+}
+
+#[test]
+fn every_file_opens_with_a_module_doc() {
+    let files = all_files_under_src();
+    assert!(
+        files.len() > 50,
+        "only {} files found under src/",
+        files.len()
+    );
+    let bad: Vec<_> = files
+        .iter()
+        .filter(|(_, text)| !opens_with_module_doc(text))
+        .map(|(rel, _)| format!("src/{rel}:1"))
+        .collect();
+    assert!(
+        bad.is_empty(),
+        "files without a leading `//!` doc saying what the module is and is not:\n{}",
+        bad.join("\n")
+    );
+}
+
+#[test]
+fn the_doc_checks_can_fail() {
+    for cite in [
+        "//! Alerts (issue 6 item 2).",
+        "// see Issue 5",
+        "/// issues 5-6",
+        "//! issue #12",
+        "let s = \"issue 3\";",
+    ] {
+        assert_eq!(tracker_citations(cite).len(), 1, "{cite:?} not found");
+    }
+    for fine in [
+        "//! no issues here",
+        "// reissue 5 frames",
+        "// the issue is 5 ms of lag",
+    ] {
+        assert!(tracker_citations(fine).is_empty(), "{fine:?} flagged");
+    }
+    assert!(opens_with_module_doc("#![allow(x)]\n\n//! Doc.\nuse a;"));
+    assert!(!opens_with_module_doc("use a;\n//! Doc."));
+    assert!(!opens_with_module_doc("/// Item doc.\nfn f() {}"));
+    assert!(!opens_with_module_doc(""));
+}

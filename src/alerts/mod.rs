@@ -1,5 +1,5 @@
-//! Maintenance alerts (issue 6 item 2): lifecycle, hysteresis, de-duplication, evidence and the
-//! maintenance guidance of the source study.
+//! Maintenance alerts as shimmyd raises them: lifecycle, hysteresis, de-duplication, evidence
+//! and the maintenance guidance of the source study.
 //!
 //! Two conditions, both evaluated once per finished braking event:
 //! * `shimmy_55kmh`: of the last `shimmy_window` braking events that began inside the speed

@@ -1,5 +1,5 @@
-//! shimmyd, the gateway daemon (issue 6): frames → [`crate::signals::Mapper`] → braking events
-//! and clearance estimate ([`crate::monitor::EventStage`]) → [`crate::alerts`] → [`crate::journal`],
+//! shimmyd, the gateway daemon: frames → [`crate::signals::Mapper`] → braking events and
+//! clearance estimate ([`crate::monitor::EventStage`]) → [`crate::alerts`] → [`crate::journal`],
 //! with the log on stderr, persisted [`state`], signals and systemd notification.
 //!
 //! | module | job |

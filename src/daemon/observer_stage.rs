@@ -1,10 +1,10 @@
 //! The adapter between shimmyd's [`EventStage`] seam and the clearance observer
-//! ([`crate::observer::Observer`], issue 5): converts the daemon's samples, hands each newly
+//! ([`crate::observer::Observer`]): converts the daemon's samples, hands each newly
 //! finished braking event to the daemon, and reports the estimator's posterior.
 //!
-//! Persistence across restarts (issue 6 item 4): the clearance posterior the daemon reports is
-//! held by this adapter's own [`Estimator`] (the observer's public estimator type, same table
-//! and `[observer.estimator]` settings), fed with each used event's features exactly as the
+//! Persistence across restarts ([`super::state`]): the clearance posterior the daemon reports
+//! is held by this adapter's own [`Estimator`] (the observer's public estimator type, same
+//! table and `[observer.estimator]` settings), fed with each used event's features exactly as the
 //! observer feeds its own, with the daemon's persisted odometer as the distance for the wear
 //! model. [`EventStage::save`] returns the estimator's evidence, one [`Evidence`] per used
 //! event, and [`EventStage::restore`] replays it into a fresh estimator, so an estimate keeps

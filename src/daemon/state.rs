@@ -1,4 +1,4 @@
-//! shimmyd's persisted state (issue 6 item 4): clearance estimate, recent event history,
+//! shimmyd's persisted state, what survives a restart: clearance estimate, recent event history,
 //! odometer and open alerts, in `<state_dir>/state.json`, written atomically.
 //!
 //! Atomic write: the new content goes to `state.json.tmp`, which is fsynced, renamed over

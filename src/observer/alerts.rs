@@ -1,5 +1,5 @@
-//! Alert rules (issue 5 item 4): pure decisions over the estimator's posterior and the recent
-//! events' amplitude estimates. No I/O, no allocation after construction.
+//! The alert rules of `shimmy estimate`'s report: pure decisions over the estimator's posterior
+//! and the recent events' amplitude estimates. No I/O, no allocation after construction.
 //!
 //! * `clearance`: the posterior gives `P(c > clearance_mm) ≥ probability`.
 //! * `shimmy_55kmh`: of the last `window` used events that began at `speed_lo_kmh`–`speed_hi_kmh`,

@@ -1,4 +1,4 @@
-//! The clearance observer (issue 5): from braking events in the mapped signal stream to a
+//! The clearance observer: from braking events in the mapped signal stream to a
 //! clearance estimate with a credible interval and two alerts.
 //!
 //! | module | job |
@@ -75,7 +75,9 @@ impl ObserverConfig {
     }
 }
 
-/// One event in the report (issue 5 item 4 field names, plus extras).
+/// One event in `shimmy estimate`'s report: when, initial speed, deceleration, the band-passed
+/// steering-wheel peak and whether it was used (and why not), plus the features and the data
+/// quality behind them.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct EventOut {
     pub t_start: f64,

@@ -1,4 +1,4 @@
-//! Workshop inspection report (issue 6 item 5): what a mechanic needs to decide about the
+//! Workshop inspection report (`shimmy report`): what a mechanic needs to decide about the
 //! steering joints, from shimmyd's journal, its state directory, or straight from logs (the CLI
 //! replays them through the daemon's pipeline into a temporary journal first).
 //!
