@@ -87,9 +87,9 @@ impl ObserverStage {
         oc.events.max_steer_deg = e.max_steer_deg;
         oc.alerts.clearance_mm = a.clearance_mm;
         oc.alerts.clearance_probability = a.clearance_probability;
-        oc.alerts.shimmy_amplitude_deg = a.shimmy_deg;
-        oc.alerts.shimmy_speed_lo_kmh = a.shimmy_speed_min_kmh;
-        oc.alerts.shimmy_speed_hi_kmh = a.shimmy_speed_max_kmh;
+        oc.alerts.shimmy_deg = a.shimmy_deg;
+        oc.alerts.shimmy_speed_min_kmh = a.shimmy_speed_min_kmh;
+        oc.alerts.shimmy_speed_max_kmh = a.shimmy_speed_max_kmh;
         // The observer's own rule looks back at most MAX_WINDOW events; the daemon's alert
         // state (crate::alerts) applies the configured window in full.
         oc.alerts.shimmy_window = a.shimmy_window.min(MAX_WINDOW);
