@@ -7,8 +7,8 @@
 use std::path::Path;
 
 use shimmy::daemon::config::Config;
-use shimmy::daemon::pipeline::{Estimate, EventStage, EventSummary, Sample};
 use shimmy::daemon::run::{run, Options};
+use shimmy::monitor::{Estimate, EventStage, EventSummary, Sample};
 
 #[derive(Default)]
 struct BrakeDouble {

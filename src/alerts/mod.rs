@@ -1,5 +1,5 @@
-//! Maintenance alerts (issue 6 item 2): lifecycle, hysteresis, de-duplication, evidence and the
-//! maintenance guidance of the source study.
+//! Maintenance alerts as shimmyd raises them: lifecycle, hysteresis, de-duplication, evidence
+//! and the maintenance guidance of the source study.
 //!
 //! Two conditions, both evaluated once per finished braking event:
 //! * `shimmy_55kmh`: of the last `shimmy_window` braking events that began inside the speed
@@ -21,12 +21,15 @@
 //!
 //! What it is not: detection or estimation (the observer's) or delivery (journal, bus, MQTT).
 
+pub mod config;
+
 use std::collections::VecDeque;
 
 use serde::{Deserialize, Serialize};
 
-use crate::daemon::config::AlertsSection;
-use crate::daemon::pipeline::{Estimate, EventSummary};
+use crate::monitor::{Estimate, EventSummary};
+
+pub use config::AlertsSection;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

@@ -1,4 +1,5 @@
-//! `shimmy estimate`: one vehicle's CAN logs in, one clearance verdict out (issue 5 item 4).
+//! `shimmy estimate`: one vehicle's CAN logs in, one clearance verdict out (events, estimate
+//! and alerts as JSON or text).
 //!
 //! This module is the plumbing: logs ([`crate::source::log::LogReader`]) → DBC decoding and
 //! signal mapping ([`crate::signals::Mapper`]) → [`crate::events::Sample`]s → the

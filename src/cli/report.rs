@@ -6,7 +6,8 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use clap::ValueEnum;
 
-use crate::daemon::config::{AlertsSection, Config};
+use crate::alerts::AlertsSection;
+use crate::daemon::config::Config;
 use crate::report::{from_journal, from_state, html};
 
 #[derive(Clone, Copy, Debug, ValueEnum)]

@@ -11,7 +11,7 @@
 //!
 //! Beside them, whenever braking events are rejected or none has been found and the counts
 //! changed since the last line, a `braking:` line gives the detector's rejections per reason
-//! and the likely cause ([`super::pipeline::EventStage::rejections`]); the journal's `stop`
+//! and the likely cause ([`crate::monitor::EventStage::rejections`]); the journal's `stop`
 //! record holds the counts as `rejections`.
 
 use serde::Serialize;

@@ -1,11 +1,10 @@
-//! shimmyd, the gateway daemon (issue 6): frames → [`crate::signals::Mapper`] → braking events
-//! and clearance estimate ([`pipeline::EventStage`]) → [`crate::alerts`] → [`crate::journal`],
+//! shimmyd, the gateway daemon: frames → [`crate::signals::Mapper`] → braking events and
+//! clearance estimate ([`crate::monitor::EventStage`]) → [`crate::alerts`] → [`crate::journal`],
 //! with the log on stderr, persisted [`state`], signals and systemd notification.
 //!
 //! | module | job |
 //! |---|---|
 //! | [`config`] | the TOML file, validated with key-naming errors |
-//! | [`pipeline`] | the seam to the observer: [`pipeline::EventStage`] |
 //! | [`counters`] | the per-interval counters line (frames, decode errors, invalid messages, events) |
 //! | [`state`] | atomic persistence of estimate, event history, odometer, open alerts |
 //! | [`run`] | the loop: sources, signals (SIGTERM, SIGHUP), sd_notify, outputs |
@@ -21,7 +20,6 @@ pub mod counters;
 pub mod mqtt;
 pub mod observer_stage;
 pub mod outbox;
-pub mod pipeline;
 pub mod run;
 pub mod stage;
 pub mod state;

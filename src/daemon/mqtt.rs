@@ -1,4 +1,4 @@
-//! The optional MQTT output to a fleet backend (issue 6 item 3): alerts and braking-event
+//! The optional MQTT output to a fleet backend: alerts and braking-event
 //! summaries, published by an outgoing `rumqttc` client through the crash-safe
 //! [`super::outbox::Outbox`], so nothing is lost while the broker is unreachable.
 //!

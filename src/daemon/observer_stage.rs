@@ -1,10 +1,10 @@
 //! The adapter between shimmyd's [`EventStage`] seam and the clearance observer
-//! ([`crate::observer::Observer`], issue 5): converts the daemon's samples, hands each newly
+//! ([`crate::observer::Observer`]): converts the daemon's samples, hands each newly
 //! finished braking event to the daemon, and reports the estimator's posterior.
 //!
-//! Persistence across restarts (issue 6 item 4): the clearance posterior the daemon reports is
-//! held by this adapter's own [`Estimator`] (the observer's public estimator type, same table
-//! and `[observer.estimator]` settings), fed with each used event's features exactly as the
+//! Persistence across restarts ([`super::state`]): the clearance posterior the daemon reports
+//! is held by this adapter's own [`Estimator`] (the observer's public estimator type, same
+//! table and `[observer.estimator]` settings), fed with each used event's features exactly as the
 //! observer feeds its own, with the daemon's persisted odometer as the distance for the wear
 //! model. [`EventStage::save`] returns the estimator's evidence, one [`Evidence`] per used
 //! event, and [`EventStage::restore`] replays it into a fresh estimator, so an estimate keeps
@@ -25,7 +25,7 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use super::config::Config;
-use super::pipeline::{Estimate, EventStage, EventSummary, RejectionSummary, Sample};
+use crate::monitor::{Estimate, EventStage, EventSummary, RejectionSummary, Sample};
 use crate::observer::alerts::MAX_WINDOW;
 use crate::observer::estimator::Estimator;
 use crate::observer::table::ResponseTable;
@@ -87,9 +87,9 @@ impl ObserverStage {
         oc.events.max_steer_deg = e.max_steer_deg;
         oc.alerts.clearance_mm = a.clearance_mm;
         oc.alerts.clearance_probability = a.clearance_probability;
-        oc.alerts.shimmy_amplitude_deg = a.shimmy_deg;
-        oc.alerts.shimmy_speed_lo_kmh = a.shimmy_speed_min_kmh;
-        oc.alerts.shimmy_speed_hi_kmh = a.shimmy_speed_max_kmh;
+        oc.alerts.shimmy_deg = a.shimmy_deg;
+        oc.alerts.shimmy_speed_min_kmh = a.shimmy_speed_min_kmh;
+        oc.alerts.shimmy_speed_max_kmh = a.shimmy_speed_max_kmh;
         // The observer's own rule looks back at most MAX_WINDOW events; the daemon's alert
         // state (crate::alerts) applies the configured window in full.
         oc.alerts.shimmy_window = a.shimmy_window.min(MAX_WINDOW);

@@ -1,5 +1,5 @@
 //! The MQTT outbox: a crash-safe, bounded, on-disk FIFO of messages waiting for the broker
-//! (issue 6 item 3, "nothing is lost while the broker is unreachable").
+//! (so nothing is lost while the broker is unreachable or the daemon restarts).
 //!
 //! What it is: a [`crate::journal::Journal`] in its own directory (same line format with
 //! sequence number and CRC-32C, same fsync-every-record durability, same torn-tail recovery and

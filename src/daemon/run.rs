@@ -25,11 +25,11 @@ use serde_json::json;
 
 use super::config::Config;
 use super::counters::{self, Counters};
-use super::pipeline::{EventStage, EventSummary, Sample};
 use super::state::{self, State};
 use crate::alerts::Transition;
 use crate::dbc::Database;
 use crate::journal::Journal;
+use crate::monitor::{EventStage, EventSummary, Sample};
 use crate::signals::mapping::MappingConfig;
 use crate::signals::{Mapper, Outcome, Reject};
 use crate::source::log::LogReader;
@@ -49,7 +49,7 @@ pub struct Options {
     pub journal_dir: Option<PathBuf>,
 }
 
-/// Builds the event stage for a configuration (the observer adapter, or [`super::pipeline::NoObserver`]).
+/// Builds the event stage for a configuration (the observer adapter, or [`crate::monitor::NoObserver`]).
 pub type StageFactory = dyn Fn(&Config) -> anyhow::Result<Box<dyn EventStage>>;
 
 /// Recorded-timing replay: once a frame is due, every frame due within this much after it is
@@ -441,7 +441,7 @@ impl Daemon {
     fn publish_event(
         &self,
         e: &EventSummary,
-        est: Option<&super::pipeline::Estimate>,
+        est: Option<&crate::monitor::Estimate>,
         transitions: &[Transition],
     ) -> anyhow::Result<()> {
         let Some(m) = &self.mqtt else {

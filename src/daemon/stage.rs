@@ -7,7 +7,7 @@ use anyhow::Context;
 
 use super::config::Config;
 use super::observer_stage::ObserverStage;
-use super::pipeline::EventStage;
+use crate::monitor::EventStage;
 use crate::observer::table::ResponseTable;
 
 pub fn for_config(cfg: &Config) -> anyhow::Result<Box<dyn EventStage>> {

@@ -1,4 +1,4 @@
-//! shimmyd's persisted state (issue 6 item 4): clearance estimate, recent event history,
+//! shimmyd's persisted state, what survives a restart: clearance estimate, recent event history,
 //! odometer and open alerts, in `<state_dir>/state.json`, written atomically.
 //!
 //! Atomic write: the new content goes to `state.json.tmp`, which is fsynced, renamed over
@@ -16,8 +16,8 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
-use super::pipeline::{Estimate, EventSummary};
 use crate::alerts::AlertBook;
+use crate::monitor::{Estimate, EventSummary};
 
 /// Most events kept in the state's history (the journal keeps all of them).
 pub const HISTORY: usize = 200;
@@ -34,7 +34,7 @@ pub struct State {
     /// Last journal sequence number covered by this state.
     pub journal_seq: Option<u64>,
     /// The event stage's own state (the clearance posterior's evidence), see
-    /// [`super::pipeline::EventStage::save`].
+    /// [`crate::monitor::EventStage::save`].
     pub stage: Option<serde_json::Value>,
     /// Last speed sample (log time ns, m/s), so the odometer integration continues across a
     /// restart when the input continues within a second (a log split in two).

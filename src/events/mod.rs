@@ -1,4 +1,5 @@
-//! Braking-event detection over the mapped signal stream (issue 5 item 1).
+//! Braking-event detection over the mapped signal stream: the first stage of the clearance
+//! observer's input.
 //!
 //! What it is: a streaming state machine fed one [`Sample`] per mapped update (normally one per
 //! CAN frame the signal mapper accepted). It finds brake applications, keeps the steering-wheel

@@ -1,5 +1,5 @@
-//! The crash-safe, append-only JSON-lines journal of shimmyd (issue 6 item 3): events, alerts
-//! and estimates, one record per line.
+//! The crash-safe, append-only JSON-lines journal of shimmyd, its durable output: events,
+//! alerts and estimates, one record per line.
 //!
 //! What it is: a directory of segment files. Records go to `current.jsonl`; when it grows past
 //! the rotation size it is fsynced, renamed to `seg-<first seq, 20 digits>.jsonl` and the

@@ -1,23 +1,29 @@
-//! Alert rules (issue 5 item 4): pure decisions over the estimator's posterior and the recent
-//! events' amplitude estimates. No I/O, no allocation after construction.
+//! The alert rules of `shimmy estimate`'s report: pure decisions over the estimator's posterior
+//! and the recent events' amplitude estimates. No I/O, no allocation after construction.
 //!
-//! * `clearance`: the posterior gives `P(c > clearance_mm) ≥ probability`.
-//! * `shimmy_55kmh`: of the last `window` used events that began at `speed_lo_kmh`–`speed_hi_kmh`,
-//!   at least `confirm` show a steering-wheel amplitude above `amplitude_deg`. The amplitude is
+//! * `clearance`: the posterior gives `P(c > clearance_mm) ≥ clearance_probability`.
+//! * `shimmy_55kmh`: of the last `shimmy_window` used events that began at
+//!   `shimmy_speed_min_kmh`–`shimmy_speed_max_kmh`, at least `shimmy_confirm` show a
+//!   steering-wheel amplitude above `shimmy_deg`. The amplitude is
 //!   the wheel's estimated true amplitude (noise-corrected, see [`super::features`]), not the
 //!   raw peak of the stepped signal.
 
 use serde::{Deserialize, Serialize};
 
-/// Thresholds (`[alerts]` of config/observer.toml).
+/// Thresholds (`[alerts]` of config/observer.toml). The keys are those of shimmyd's `[alerts]`
+/// ([`crate::alerts::AlertsSection`]), so one name means one setting everywhere; the earlier
+/// names ([`DEPRECATED_KEYS`]) are still read, with a deprecation warning.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct AlertConfig {
     pub clearance_mm: f64,
     pub clearance_probability: f64,
-    pub shimmy_amplitude_deg: f64,
-    pub shimmy_speed_lo_kmh: f64,
-    pub shimmy_speed_hi_kmh: f64,
+    #[serde(alias = "shimmy_amplitude_deg")]
+    pub shimmy_deg: f64,
+    #[serde(alias = "shimmy_speed_lo_kmh")]
+    pub shimmy_speed_min_kmh: f64,
+    #[serde(alias = "shimmy_speed_hi_kmh")]
+    pub shimmy_speed_max_kmh: f64,
     pub shimmy_window: usize,
     pub shimmy_confirm: usize,
 }
@@ -27,13 +33,36 @@ impl Default for AlertConfig {
         AlertConfig {
             clearance_mm: 0.1,
             clearance_probability: 0.9,
-            shimmy_amplitude_deg: 0.2,
-            shimmy_speed_lo_kmh: 50.0,
-            shimmy_speed_hi_kmh: 60.0,
+            shimmy_deg: 0.2,
+            shimmy_speed_min_kmh: 50.0,
+            shimmy_speed_max_kmh: 60.0,
             shimmy_window: 5,
             shimmy_confirm: 2,
         }
     }
+}
+
+/// `[alerts]` keys of config/observer.toml that were renamed to shimmyd's names: (old, new).
+/// The old names are accepted for one release, with a warning naming the new key.
+pub const DEPRECATED_KEYS: &[(&str, &str)] = &[
+    ("shimmy_amplitude_deg", "shimmy_deg"),
+    ("shimmy_speed_lo_kmh", "shimmy_speed_min_kmh"),
+    ("shimmy_speed_hi_kmh", "shimmy_speed_max_kmh"),
+];
+
+/// The deprecation warnings for an `[alerts]` table as written: one per old key it uses,
+/// naming the key that replaces it.
+pub fn deprecations(alerts: &toml::Table) -> Vec<String> {
+    DEPRECATED_KEYS
+        .iter()
+        .filter(|(old, _)| alerts.contains_key(*old))
+        .map(|(old, new)| {
+            format!(
+                "[alerts] {old} is deprecated and will be removed in the next release; \
+                 use {new} (same meaning, same value)"
+            )
+        })
+        .collect()
 }
 
 /// Most events the shimmy rule can look back on.
@@ -54,7 +83,7 @@ impl ShimmyRule {
         v0_kmh: f64,
         amplitude_deg: f64,
     ) -> bool {
-        if !(cfg.shimmy_speed_lo_kmh..=cfg.shimmy_speed_hi_kmh).contains(&v0_kmh) {
+        if !(cfg.shimmy_speed_min_kmh..=cfg.shimmy_speed_max_kmh).contains(&v0_kmh) {
             return false;
         }
         let window = cfg.shimmy_window.clamp(1, MAX_WINDOW);
@@ -69,7 +98,7 @@ impl ShimmyRule {
     pub fn hits(&self, cfg: &AlertConfig) -> usize {
         self.recent
             .iter()
-            .filter(|(_, a)| *a > cfg.shimmy_amplitude_deg)
+            .filter(|(_, a)| *a > cfg.shimmy_deg)
             .count()
     }
 

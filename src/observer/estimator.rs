@@ -1,5 +1,5 @@
-//! Clearance estimation (issue 5 item 3): a posterior over a clearance grid, updated by each
-//! used braking event. Two methods (`[estimator] method`):
+//! Clearance estimation from the response table ([`super::table`]): a posterior over a
+//! clearance grid, updated by each used braking event. Two methods (`[estimator] method`):
 //!
 //! * `"linear"` (the default): the vehicle's nuisances integrated out continuously on the
 //!   table's linear nuisance model, on a grid 4× finer than the table's clearances, with

@@ -1,6 +1,7 @@
-//! Per-event steering-wheel features (issue 5 item 2), computed by one function on measured
-//! samples and on the model's output passed through [`super::sensor::SensorModel`], so the
-//! response table and the measurements are comparable by construction.
+//! Per-event steering-wheel features (the estimator's measurements), computed by one function
+//! on measured samples and on the model's output passed through
+//! [`super::sensor::SensorModel`], so the response table and the measurements are comparable by
+//! construction.
 //!
 //! Features, all over the braking window of MODEL.md §11 (brake onset to stop/release + 0.3 s),
 //! on the 4th-order 3–25 Hz zero-phase Butterworth band-passed steering-wheel angle:

@@ -1,4 +1,4 @@
-//! The clearance observer (issue 5): from braking events in the mapped signal stream to a
+//! The clearance observer: from braking events in the mapped signal stream to a
 //! clearance estimate with a credible interval and two alerts.
 //!
 //! | module | job |
@@ -66,17 +66,52 @@ impl Default for FeatureConfig {
 
 impl ObserverConfig {
     pub fn from_toml_str(text: &str) -> anyhow::Result<ObserverConfig> {
-        Ok(toml::from_str(text)?)
+        Ok(Self::from_toml_str_with_warnings(text)?.0)
     }
 
+    /// [`Self::from_toml_str`], also returning the deprecation warnings for what the text
+    /// uses (old key names that are still accepted: [`alerts::DEPRECATED_KEYS`]).
+    pub fn from_toml_str_with_warnings(
+        text: &str,
+    ) -> anyhow::Result<(ObserverConfig, Vec<String>)> {
+        let cfg: ObserverConfig = toml::from_str(text)?;
+        // It parsed, so it is a table and `[alerts]`, when present, is one too.
+        let raw: toml::Table = toml::from_str(text)?;
+        let warnings = match raw.get("alerts") {
+            Some(toml::Value::Table(t)) => alerts::deprecations(t),
+            _ => Vec::new(),
+        };
+        Ok((cfg, warnings))
+    }
+
+    /// Reads the file; prints each deprecation warning on stderr, naming the file and the key
+    /// that replaces the old one ([`Self::load_with_warnings`] returns them instead).
     pub fn load(path: &Path) -> anyhow::Result<ObserverConfig> {
+        let (cfg, warnings) = Self::load_with_warnings(path)?;
+        for w in warnings {
+            eprintln!("warning: {w}");
+        }
+        Ok(cfg)
+    }
+
+    /// [`Self::load`] without printing: the configuration and its deprecation warnings, each
+    /// prefixed with the file's path.
+    pub fn load_with_warnings(path: &Path) -> anyhow::Result<(ObserverConfig, Vec<String>)> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read {}", path.display()))?;
-        Self::from_toml_str(&text).with_context(|| format!("in {}", path.display()))
+        let (cfg, warnings) = Self::from_toml_str_with_warnings(&text)
+            .with_context(|| format!("in {}", path.display()))?;
+        let warnings = warnings
+            .into_iter()
+            .map(|w| format!("{}: {w}", path.display()))
+            .collect();
+        Ok((cfg, warnings))
     }
 }
 
-/// One event in the report (issue 5 item 4 field names, plus extras).
+/// One event in `shimmy estimate`'s report: when, initial speed, deceleration, the band-passed
+/// steering-wheel peak and whether it was used (and why not), plus the features and the data
+/// quality behind them.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct EventOut {
     pub t_start: f64,
@@ -433,7 +468,7 @@ impl Observer {
                 kind: "shimmy_55kmh",
                 t_raised: t,
                 evidence: serde_json::json!({
-                    "threshold_deg": a.shimmy_amplitude_deg,
+                    "threshold_deg": a.shimmy_deg,
                     "hits": self.shimmy.hits(a),
                     "confirm": a.shimmy_confirm,
                     "recent_events": recent,

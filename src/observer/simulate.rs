@@ -1,8 +1,9 @@
-//! One simulated braking event seen through the observer (issue 5 items 2–3): the shimmy model
-//! is run through one braking event ([`EventShape`]: MODEL.md §6's event from a kick, or the
-//! event as a vehicle on the road sees it — seconds of cruising first, then firmware-sim's pedal
-//! law), its steering-wheel angle δ_sw (§8) goes through the observer's
-//! sensor model ([`super::sensor`]) and its speed through a 50 Hz speed signal, and the result
+//! One simulated braking event seen through the observer (the source of the response table's
+//! feature distributions): the shimmy model is run through one braking event ([`EventShape`]:
+//! MODEL.md §6's event from a kick, or the event as a vehicle on the road sees it — seconds of
+//! cruising first, then firmware-sim's pedal law), its steering-wheel angle δ_sw (§8) goes
+//! through the observer's sensor model ([`super::sensor`]) and its speed through a 50 Hz speed
+//! signal, and the result
 //! is fed to the same [`Detector`] and [`Extractor`] that process a real log. So the features
 //! of a simulated event and of a measured one are computed by the same code.
 //!
@@ -58,7 +59,7 @@ impl Default for NuisanceRanges {
     }
 }
 
-/// One whole nuisance vehicle (issue 5: the nuisances are properties of a vehicle, shared by
+/// One whole nuisance vehicle (the nuisances are properties of a vehicle, shared by
 /// all its braking events): [`perturb`] followed by a uniform road-noise factor, in the order
 /// firmware-sim's fleet draws them.
 pub fn perturb_vehicle(
@@ -82,7 +83,7 @@ pub enum EventShape {
     /// MODEL.md §6 as written: the steering system released with the initial kick θ1'(0) at
     /// t = 0, the brake ramp at `braking.onset_s`, the pedal held to the end.
     Single,
-    /// The event as a vehicle on the road sees it (firmware-sim's drive cycle, issue 4): no
+    /// The event as a vehicle on the road sees it (firmware-sim's drive cycle): no
     /// kick; with `accel_g > 0` the car pulls away from standstill at up to `accel_g` (the
     /// first-order speed approach and jerk limit of firmware-sim's driver, `drive.rs`), else
     /// it starts at the initial speed; then `cruise_s` of constant-speed driving (unbalance and

@@ -1,8 +1,8 @@
-//! The response table (issue 5 item 3): for a grid of clearance × nuisance vehicle × initial
-//! speed × deceleration, the distribution of the per-event features ([`super::features`]) the
-//! model predicts after the sensor model.
+//! The response table, what the estimator compares measurements with: for a grid of
+//! clearance × nuisance vehicle × initial speed × deceleration, the distribution of the
+//! per-event features ([`super::features`]) the model predicts after the sensor model.
 //!
-//! The nuisances of issue 5 (±10 % on stiffness and damping, unbalance magnitude, road-noise
+//! The nuisances (±10 % on stiffness and damping, unbalance magnitude, road-noise
 //! level) belong to a vehicle and are shared by all its braking events, so they are not
 //! averaged into one spread: the table holds `vehicles` nuisance vehicles θ_m drawn from that
 //! prior, the same θ_m at every clearance, and each cell describes the event-to-event spread

@@ -1,4 +1,4 @@
-//! Workshop inspection report (issue 6 item 5): what a mechanic needs to decide about the
+//! Workshop inspection report (`shimmy report`): what a mechanic needs to decide about the
 //! steering joints, from shimmyd's journal, its state directory, or straight from logs (the CLI
 //! replays them through the daemon's pipeline into a temporary journal first).
 //!
@@ -20,9 +20,9 @@ use std::path::Path;
 use anyhow::{bail, Context};
 use serde::Serialize;
 
+use crate::alerts::AlertsSection;
 use crate::alerts::{Alert, Kind};
-use crate::daemon::config::AlertsSection;
-use crate::daemon::pipeline::{Estimate, EventSummary};
+use crate::monitor::{Estimate, EventSummary};
 
 /// Steering-wheel trace of one event, as journaled (times relative to the brake onset).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
@@ -49,8 +49,8 @@ mod tests {
     /// interval that includes it is "keep monitoring", whatever its median.
     #[test]
     fn verdict_says_ok_only_below_the_limit_and_keep_monitoring_across_it() {
-        use crate::daemon::config::AlertsSection;
-        use crate::daemon::pipeline::Estimate;
+        use crate::alerts::AlertsSection;
+        use crate::monitor::Estimate;
         let cfg = AlertsSection::default();
         let est = |median: Option<f64>, lo: f64, hi: f64, detectable: bool| Estimate {
             clearance_mm: median,

@@ -1,5 +1,5 @@
-//! `shimmy calibrate`: builds the observer's response table from the shimmy model (issue 5
-//! item 3). Policy lives in [`crate::observer::simulate`] (one event through the sensor,
+//! `shimmy calibrate`: builds the observer's response table ([`crate::observer::table`]) from
+//! the shimmy model. Policy lives in [`crate::observer::simulate`] (one event through the sensor,
 //! detector and features) and [`crate::observer::table`] (the format); this module is the grid,
 //! the parallel sweep and the statistics.
 

@@ -1,13 +1,16 @@
-//! The seam between the daemon and the clearance observer (issue 5): a small trait,
-//! [`EventStage`], fed one [`Sample`] per accepted mapped update, handing back finished braking
-//! events and the current clearance estimate.
+//! The monitor pipeline's shared vocabulary: frames → signals → braking events → estimate →
+//! alerts, as both `shimmyd` and the offline replay commands run it. This module holds the seam
+//! between the mapped signals and the clearance observer: the [`EventStage`] trait, fed one
+//! [`Sample`] per accepted mapped update, handing back finished braking events
+//! ([`EventSummary`]) and the current clearance estimate ([`Estimate`]).
 //!
-//! What it is: the contract the daemon, the alerts and the report are written against, plus
-//! [`NoObserver`] for builds/configurations without an observer (it detects nothing and
-//! estimates nothing — it never invents an estimate). The adapter for
-//! `shimmy::observer::Observer` is [`super::observer_stage::ObserverStage`].
+//! What it is: the contract the daemon, the alert rules ([`crate::alerts`]) and the report are
+//! written against, plus [`NoObserver`] for configurations without an observer (it detects
+//! nothing and estimates nothing — it never invents an estimate). The daemon's adapter for
+//! [`crate::observer::Observer`] is `shimmy::daemon::observer_stage::ObserverStage`.
 //!
-//! What it is not: a detector or an estimator.
+//! What it is not: a detector, an estimator, an alert rule or an output. It sits below the
+//! alert rules and the daemon and depends on neither.
 
 use serde::{Deserialize, Serialize};
 
