@@ -5,8 +5,8 @@
 //! Persistence across restarts ([`super::state`]): the clearance posterior the daemon reports
 //! is held by this adapter's own [`Estimator`] (the observer's public estimator type, same
 //! table and `[observer.estimator]` settings), fed with each used event's features exactly as the
-//! observer feeds its own, with the daemon's persisted odometer as the distance for the wear
-//! model. [`EventStage::save`] returns the estimator's evidence, one [`Evidence`] per used
+//! observer feeds its own, with the daemon's persisted odometer at the event's brake onset as
+//! the distance for the wear model. [`EventStage::save`] returns the estimator's evidence, one [`Evidence`] per used
 //! event, and [`EventStage::restore`] replays it into a fresh estimator, so an estimate keeps
 //! accumulating across daemon runs: two runs over logs A then B end with the same posterior as
 //! one run over A+B. (The observer's estimator exposes no way to set its posterior directly;
@@ -132,7 +132,9 @@ impl ObserverStage {
                 cruise_rms_deg: e.cruise_rms_sw_bp_deg,
                 v0_kmh: e.v0_kmh,
                 decel_g: e.decel_g,
-                odometer_m: self.odometer_km * 1000.0,
+                // The daemon's odometer at the brake onset, as the observer's own estimator
+                // places the event: the same distances between events on both paths.
+                odometer_m: self.odometer_km * 1000.0 - self.obs.distance_since_last_event_m(),
             };
             self.apply(&ev);
         }

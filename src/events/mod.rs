@@ -285,6 +285,11 @@ fn secs(t_ns: i64) -> f64 {
 }
 
 impl Detector {
+    /// Distance driven since the first sample (m): the speed integrated (trapezoid).
+    pub fn odometer_m(&self) -> f64 {
+        self.odometer_m
+    }
+
     /// Allocates every buffer once, here.
     pub fn new(cfg: EventConfig) -> Detector {
         let cap = cfg.max_samples.max(16);

@@ -203,6 +203,9 @@ pub struct Observer {
     events_dropped: u64,
     /// The most recent event, kept even when `events` is full (streaming consumers).
     last_event: Option<EventOut>,
+    /// The detector's odometer (m) at the most recent event's brake onset: the position the
+    /// estimator's wear model measures the distance between events from.
+    last_event_odometer_m: f64,
     clearance_raised: Option<(f64, f64)>,
     shimmy_raised: Option<f64>,
     /// Events whose sensor did not match the table's, and the last one's (rate Hz, step deg).
@@ -231,6 +234,7 @@ impl Observer {
             events: Vec::new(),
             events_dropped: 0,
             last_event: None,
+            last_event_odometer_m: 0.0,
             clearance_raised: None,
             shimmy_raised: None,
             sensor_mismatch: 0,
@@ -416,6 +420,7 @@ impl Observer {
             self.events.push(out.clone());
         }
         self.last_event = Some(out);
+        self.last_event_odometer_m = rec.odometer_m;
     }
 
     /// The events kept for the report (at most [`MAX_EVENTS_KEPT`]).
@@ -432,6 +437,13 @@ impl Observer {
     /// The most recently finished event, also when the kept list is full.
     pub fn last_event(&self) -> Option<&EventOut> {
         self.last_event.as_ref()
+    }
+
+    /// Distance (m) driven since the most recent event's brake onset, on the detector's
+    /// odometer: what a caller with its own odometer subtracts to place the event where the
+    /// estimator of [`Self::report`] places it.
+    pub fn distance_since_last_event_m(&self) -> f64 {
+        (self.detector.odometer_m() - self.last_event_odometer_m).max(0.0)
     }
 
     pub fn estimator(&self) -> Option<&Estimator> {

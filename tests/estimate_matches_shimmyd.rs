@@ -1,0 +1,193 @@
+//! `shimmy estimate LOG` and `shimmyd --replay LOG --fast` run the same monitor: for the demo
+//! fixture and for a firmware-sim fleet of ten vehicles, both report the same braking events
+//! (field by field, to rounding), the same final clearance estimate, and the same alerts
+//! standing at the end of the log. They differ only in what they write (stdout JSON vs the
+//! journal).
+
+mod e2e_common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use e2e_common::{firmware_sim, shimmyd, workspace, Journal};
+use serde_json::Value;
+
+fn shimmy() -> PathBuf {
+    PathBuf::from(env!("CARGO_BIN_EXE_shimmy"))
+}
+
+/// `shimmy estimate --profile shimmy_reference LOG`, its JSON.
+fn estimate(log: &Path) -> Value {
+    let out = Command::new(shimmy())
+        .current_dir(workspace())
+        .args(["estimate", "--profile", "shimmy_reference"])
+        .arg(log)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "shimmy estimate {}: {}",
+        log.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// `shimmyd --replay LOG --fast` with the reference profile and nothing else configured.
+fn replay(log: &Path, dir: &Path) -> Journal {
+    std::fs::create_dir_all(dir).unwrap();
+    let cfg = dir.join("shimmyd.toml");
+    std::fs::write(
+        &cfg,
+        "[input]\nprofile = \"shimmy_reference\"\n\
+         [outputs]\njournal_dir = \"journal\"\nstate_dir = \"state\"\n",
+    )
+    .unwrap();
+    let out = Command::new(shimmyd())
+        .current_dir(workspace())
+        .arg("--config")
+        .arg(&cfg)
+        .arg("--replay")
+        .arg(log)
+        .arg("--fast")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "shimmyd --replay {}: {}",
+        log.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    Journal::read(&dir.join("journal"))
+}
+
+/// Equal numbers to `rel` of the larger (or equal JSON where not numbers).
+fn same_number(a: &Value, b: &Value, what: &str, rel: f64) {
+    match (a.as_f64(), b.as_f64()) {
+        (Some(x), Some(y)) => assert!(
+            (x - y).abs() <= rel * x.abs().max(y.abs()).max(1e-3),
+            "{what}: estimate {x} vs shimmyd {y}"
+        ),
+        _ => assert_eq!(a, b, "{what}"),
+    }
+}
+
+/// Events: the same computation on the same samples.
+const EVENT_REL: f64 = 1e-9;
+/// The estimate: the same evidence; the daemon places each event on its own odometer (kept
+/// across restarts), `estimate` on the detector's, which agree to rounding.
+const ESTIMATE_REL: f64 = 1e-9;
+
+/// The alert kinds standing at the end of the journal (raised or updated, not cleared since).
+fn standing(j: &Journal) -> Vec<String> {
+    let mut last: Vec<(String, String)> = Vec::new();
+    for (t, k) in &j.alerts {
+        last.retain(|(kk, _)| kk != k);
+        last.push((k.clone(), t.clone()));
+    }
+    let mut k: Vec<String> = last
+        .into_iter()
+        .filter(|(_, t)| t != "cleared")
+        .map(|(k, _)| k)
+        .collect();
+    k.sort();
+    k
+}
+
+fn compare(log: &Path, dir: &Path) {
+    let e = estimate(log);
+    let j = replay(log, dir);
+    let what = log.display();
+    let ev = e["events"].as_array().unwrap();
+    assert_eq!(ev.len(), j.events.len(), "{what}: events");
+    for (k, (a, b)) in ev.iter().zip(&j.events).enumerate() {
+        for f in [
+            "t_start",
+            "t_end",
+            "v0_kmh",
+            "decel_g",
+            "peak_sw_bp_deg",
+            "sw_amplitude_deg",
+        ] {
+            same_number(&a[f], &b[f], &format!("{what}: event {k} {f}"), EVENT_REL);
+        }
+        assert_eq!(a["used"], b["used"], "{what}: event {k} used");
+        assert_eq!(
+            a["unused_reason"], b["unused_reason"],
+            "{what}: event {k} unused_reason"
+        );
+    }
+    let d = j.estimate.clone().unwrap_or(Value::Null);
+    for (fe, fd) in [
+        ("clearance_mm", "clearance_mm"),
+        ("detectable", "detectable"),
+        ("below_mm", "below_mm"),
+        ("p_clearance_above_threshold", "p_above"),
+        ("events_used", "events_used"),
+    ] {
+        same_number(
+            &e[fe],
+            &d[fd],
+            &format!("{what}: estimate {fe}"),
+            ESTIMATE_REL,
+        );
+    }
+    for i in 0..2 {
+        same_number(
+            &e["interval_mm"][i],
+            &d["interval_mm"][i],
+            &format!("{what}: interval {i}"),
+            ESTIMATE_REL,
+        );
+    }
+    let mut kinds: Vec<String> = e["alerts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a["kind"].as_str().unwrap().to_string())
+        .collect();
+    kinds.sort();
+    assert_eq!(kinds, standing(&j), "{what}: alerts at the end");
+}
+
+#[test]
+fn the_demo_fixture_gives_the_same_events_estimate_and_alerts() {
+    let dir = tempfile::tempdir().unwrap();
+    compare(
+        &workspace().join("tests/fixtures/demo/worn_0p2mm.log"),
+        dir.path(),
+    );
+}
+
+#[test]
+fn a_fleet_of_ten_gives_the_same_events_estimate_and_alerts_on_every_vehicle() {
+    let dir = tempfile::tempdir().unwrap();
+    let logs = dir.path().join("fleet");
+    let out = Command::new(firmware_sim())
+        .current_dir(workspace())
+        .args([
+            "fleet",
+            "--profile",
+            "shimmy_reference",
+            "--vehicles",
+            "10",
+            "--events",
+            "5",
+            "--seed-base",
+            "77000",
+            "--logs-only",
+            "--work-dir",
+        ])
+        .arg(&logs)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "firmware-sim fleet: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for k in 0..10 {
+        let log = logs.join(format!("fleet_{}.log", 77000 + k));
+        compare(&log, &dir.path().join(format!("run{k}")));
+    }
+}
