@@ -4,7 +4,7 @@
 //!
 //! Persistence across restarts ([`super::state`]): the clearance posterior the daemon reports
 //! is held by this adapter's own [`Estimator`] (the observer's public estimator type, same
-//! table and `[observer.estimator]` settings), fed with each used event's features exactly as the
+//! table and `[estimator]` settings), fed with each used event's features exactly as the
 //! observer feeds its own, with the daemon's persisted odometer as the distance for the wear
 //! model. [`EventStage::save`] returns the estimator's evidence, one [`Evidence`] per used
 //! event, and [`EventStage::restore`] replays it into a fresh estimator, so an estimate keeps

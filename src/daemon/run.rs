@@ -474,7 +474,7 @@ impl Daemon {
                     || new.observer != self.cfg.observer
                     || new.mqtt != self.cfg.mqtt
                 {
-                    log("SIGHUP: [input], [vehicle], [events], [outputs], [observer] or [mqtt] changed: these take effect after a restart");
+                    log("SIGHUP: [input], [vehicle], [outputs], [mqtt] or the monitor's [events], [features] or [estimator] changed: these take effect after a restart");
                 }
                 self.cfg.alerts = new.alerts;
                 self.cfg.log = new.log;
