@@ -9,8 +9,13 @@ fn workspace() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// A daemon file with every table written out: config/shimmyd.toml as it was before it named
+/// the monitor's settings file (`monitor`), with `[events]`, `[alerts]` and `[observer.*]` in
+/// it. That layout is still read (with deprecation warnings), and it holds every key the broken
+/// cases below change.
 fn default_text() -> String {
-    std::fs::read_to_string(workspace().join("config/shimmyd.toml")).unwrap()
+    std::fs::read_to_string(workspace().join("tests/fixtures/config/shimmyd_old_layout.toml"))
+        .unwrap()
 }
 
 fn load(text: &str) -> Result<Config, String> {

@@ -21,7 +21,9 @@ use shimmy::daemon::run::{run, Options};
 #[derive(Parser, Debug)]
 #[command(name = "shimmyd", version, verbatim_doc_comment)]
 struct Cli {
-    /// The configuration file (see config/shimmyd.toml).
+    /// The configuration file (config/shimmyd.toml is the documented default; every setting,
+    /// of this file and of the monitor's settings file it names with `monitor`, is in
+    /// docs/CONFIG.md).
     #[arg(long, value_name = "FILE", required_unless_present = "journal_stress")]
     config: Option<PathBuf>,
     /// The car, overriding the configuration's (`input.profile`, `input.dbc`, `input.mapping`,
@@ -77,8 +79,10 @@ fn main() {
     } else {
         let config = cli.config.expect("clap requires --config");
         if cli.check {
-            Config::load_with_profile(&config, cli.profile.as_deref())
-                .map(|_| eprintln!("shimmyd: {} is valid", config.display()))
+            Config::load_with_profile(&config, cli.profile.as_deref()).map(|c| {
+                c.print_warnings();
+                eprintln!("shimmyd: {} is valid", config.display())
+            })
         } else {
             run(
                 Options {

@@ -87,7 +87,8 @@ pub struct Args {
     #[arg(long, value_name = "FILE")]
     pub table: Option<PathBuf>,
 
-    /// Observer thresholds (TOML, as config/observer.toml); default: built-in defaults.
+    /// The monitor's settings (TOML, as config/observer.toml: events, features, estimator,
+    /// alerts; every key in docs/CONFIG.md); default: built-in defaults.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
 

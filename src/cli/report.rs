@@ -67,7 +67,11 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let cfg = match &args.config {
-        Some(p) => Some(Config::load(p)?),
+        Some(p) => {
+            let c = Config::load(p)?;
+            c.print_warnings();
+            Some(c)
+        }
         None => None,
     };
     let alerts = cfg

@@ -1,12 +1,19 @@
-//! shimmyd's configuration: one TOML file (config/shimmyd.toml is the documented default).
+//! shimmyd's configuration: one TOML file (config/shimmyd.toml is the documented default;
+//! docs/CONFIG.md documents every key).
 //!
 //! What it is: the serde types (every table `deny_unknown_fields`, so a typo is an error, not a
 //! silently ignored key) and [`Config::load`], which parses, resolves relative paths against the
 //! file's directory and checks what serde cannot express. Every error names the key and the
 //! problem, e.g. `alerts.shimmy_deg: must be > 0 (got -0.2)`.
 //!
-//! What it is not: the loading of the files it points to (DBC, mapping, vehicle): the daemon does
-//! that at start-up and reports their errors with their own file names.
+//! The daemon's file holds what is the daemon's (inputs, vehicle, outputs, log, MQTT) and names
+//! the monitor's settings file with the top-level key `monitor` ([`ObserverConfig`], the file
+//! `shimmy estimate --config` reads), which it loads here. The earlier layout, with `[events]`,
+//! `[alerts]` and `[observer.*]` written into the daemon's file, is still read, with deprecation
+//! warnings ([`Config::warnings`]); giving both is an error.
+//!
+//! What it is not: the loading of the files the daemon uses later (DBC, mapping, vehicle): the
+//! daemon does that at start-up and reports their errors with their own file names.
 
 use std::path::{Path, PathBuf};
 
@@ -16,22 +23,34 @@ use serde::{Deserialize, Serialize};
 use crate::alerts::config::AlertsSection;
 use crate::journal::{FsyncPolicy, JournalConfig};
 use crate::observer::estimator::EstimatorConfig;
-use crate::observer::FeatureConfig;
+use crate::observer::{FeatureConfig, ObserverConfig};
 
 /// The whole file.
+///
+/// `events`, `alerts` and `observer` hold the settings in effect whichever way they were given
+/// (from the `monitor` file, or from the deprecated tables of the daemon's own file);
+/// `settings` holds all of them as the observer takes them.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Config {
+    /// The monitor's settings file (config/observer.toml's schema: `[events]`, `[features]`,
+    /// `[estimator]`, `[alerts]`), relative to this file. Without it, and without the deprecated
+    /// tables below, the built-in defaults apply.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub monitor: Option<PathBuf>,
     pub input: Input,
     #[serde(default)]
     pub vehicle: VehicleSection,
+    /// Deprecated in the daemon's file: `[events]` of the `monitor` file.
     #[serde(default)]
     pub events: EventsSection,
+    /// Deprecated in the daemon's file: `[alerts]` of the `monitor` file.
     #[serde(default)]
     pub alerts: AlertsSection,
     pub outputs: Outputs,
     #[serde(default)]
     pub log: LogSection,
+    /// Deprecated in the daemon's file: `[features]` and `[estimator]` of the `monitor` file.
     #[serde(default)]
     pub observer: ObserverSection,
     #[serde(default)]
@@ -39,6 +58,39 @@ pub struct Config {
     /// The profile `input.profile` names, loaded (not part of the file).
     #[serde(skip)]
     pub profile: Option<crate::profile::Profile>,
+    /// The monitor's settings in effect, complete (not part of the file).
+    #[serde(skip)]
+    pub settings: ObserverConfig,
+    /// Deprecation warnings for what the file (or the `monitor` file) uses, each naming what
+    /// replaces it (not part of the file). shimmyd prints them at start.
+    #[serde(skip)]
+    pub warnings: Vec<String>,
+}
+
+/// Tables of the daemon's file that moved to the monitor's settings file: (table in the daemon's
+/// file, the table of the monitor file that replaces it). Read for one more release.
+pub const DEPRECATED_TABLES: &[(&str, &str)] = &[
+    ("events", "events"),
+    ("alerts", "alerts"),
+    ("observer.features", "features"),
+    ("observer.features.sensor", "features.sensor"),
+    ("observer.estimator", "estimator"),
+];
+
+/// The deprecated tables `raw` (a daemon file as written) contains, as (old, new) pairs (an
+/// empty `[observer]` holds no setting and is not one of them).
+fn deprecated_tables(raw: &toml::Table) -> Vec<(&'static str, &'static str)> {
+    let mut found = Vec::new();
+    for &(old, new) in DEPRECATED_TABLES {
+        let mut t = Some(raw);
+        for part in old.split('.') {
+            t = t.and_then(|t| t.get(part)).and_then(|v| v.as_table());
+        }
+        if t.is_some() {
+            found.push((old, new));
+        }
+    }
+    found
 }
 
 /// `[input]`: where frames come from and how to read them.
@@ -254,8 +306,22 @@ impl Config {
         base: &Path,
         profile: Option<&str>,
     ) -> anyhow::Result<Config> {
+        Config::parse(text, base, profile, "")
+    }
+
+    /// [`Self::from_toml_str_with`]; `origin` starts each warning about the text itself (the
+    /// file's name, when there is one).
+    fn parse(
+        text: &str,
+        base: &Path,
+        profile: Option<&str>,
+        origin: &str,
+    ) -> anyhow::Result<Config> {
         let mut cfg: Config = toml::from_str(text).map_err(|e| anyhow::anyhow!("{e}"))?;
+        // It parsed, so it is a table.
+        let raw: toml::Table = toml::from_str(text).map_err(|e| anyhow::anyhow!("{e}"))?;
         cfg.resolve(base);
+        cfg.apply_monitor(&raw, origin)?;
         if let Some(name) = profile {
             cfg.input.profile = Some(name.to_string());
             cfg.input.dbc = None;
@@ -263,8 +329,74 @@ impl Config {
             cfg.vehicle.table = None;
         }
         cfg.apply_profile(base)?;
-        cfg.validate()?;
+        cfg.validate_daemon()?;
+        match &cfg.monitor {
+            Some(m) => cfg
+                .validate_settings()
+                .with_context(|| format!("monitor: in {}", m.display()))?,
+            None => cfg.validate_settings()?,
+        }
         Ok(cfg)
+    }
+
+    /// Fills in the monitor's settings: from the `monitor` file when given (an error if the
+    /// daemon's file also has any of [`DEPRECATED_TABLES`]), otherwise from those tables of the
+    /// daemon's file, with a deprecation warning for each.
+    fn apply_monitor(&mut self, raw: &toml::Table, origin: &str) -> anyhow::Result<()> {
+        let old = deprecated_tables(raw);
+        if let Some(path) = &self.monitor {
+            if let Some((t, new)) = old.first() {
+                bail!(
+                    "monitor = {:?} and [{t}] both given: the monitor's settings are read from one \
+                     place; move the keys of [{t}] into [{new}] of {}",
+                    path.display().to_string(),
+                    path.display()
+                );
+            }
+            let (settings, warnings) = ObserverConfig::load_with_warnings(path)
+                .with_context(|| format!("monitor: {}", path.display()))?;
+            self.events = EventsSection {
+                min_speed_kmh: settings.events.min_speed_kmh,
+                max_speed_kmh: settings.events.max_speed_kmh,
+                min_decel_g: settings.events.min_decel_g,
+                max_decel_g: settings.events.max_decel_g,
+                max_steer_deg: settings.events.max_steer_deg,
+            };
+            self.alerts = settings.alerts.clone();
+            self.observer = ObserverSection {
+                features: settings.features.clone(),
+                estimator: settings.estimator.clone(),
+            };
+            self.settings = settings;
+            self.warnings.extend(warnings);
+            return Ok(());
+        }
+        for (t, new) in old {
+            self.warnings.push(format!(
+                "{origin}[{t}] in the daemon's configuration is deprecated and will be removed in the \
+                 next release; put its keys in [{new}] of the monitor's settings file \
+                 (config/observer.toml) and name that file with the top-level key \
+                 `monitor = \"observer.toml\"` (docs/CONFIG.md)"
+            ));
+        }
+        if let Some(toml::Value::Table(a)) = raw.get("alerts") {
+            self.warnings.extend(
+                crate::observer::alerts::deprecations(a)
+                    .into_iter()
+                    .map(|w| format!("{origin}{w} (daemon configuration)")),
+            );
+        }
+        let mut s = ObserverConfig::default();
+        s.events.min_speed_kmh = self.events.min_speed_kmh;
+        s.events.max_speed_kmh = self.events.max_speed_kmh;
+        s.events.min_decel_g = self.events.min_decel_g;
+        s.events.max_decel_g = self.events.max_decel_g;
+        s.events.max_steer_deg = self.events.max_steer_deg;
+        s.features = self.observer.features.clone();
+        s.estimator = self.observer.estimator.clone();
+        s.alerts = self.alerts.clone();
+        self.settings = s;
+        Ok(())
     }
 
     /// Loads `input.profile` and fills in what the file leaves to it: the DBC, the mapping and
@@ -304,8 +436,15 @@ impl Config {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read config {}", path.display()))?;
         let base = path.parent().unwrap_or(Path::new("."));
-        Config::from_toml_str_with(&text, base, profile)
+        Config::parse(&text, base, profile, &format!("{}: ", path.display()))
             .with_context(|| format!("invalid config {}", path.display()))
+    }
+
+    /// Prints [`Self::warnings`] on stderr, one `warning:` line each.
+    pub fn print_warnings(&self) {
+        for w in &self.warnings {
+            eprintln!("warning: {w}");
+        }
     }
 
     fn resolve(&mut self, base: &Path) {
@@ -327,6 +466,9 @@ impl Config {
         if let Some(p) = self.vehicle.table.as_mut() {
             fix(p);
         }
+        if let Some(p) = self.monitor.as_mut() {
+            fix(p);
+        }
         fix(&mut self.outputs.journal_dir);
         fix(&mut self.outputs.state_dir);
         if let Some(p) = self.mqtt.queue_dir.as_mut() {
@@ -336,6 +478,12 @@ impl Config {
 
     /// The checks serde cannot express.
     pub fn validate(&self) -> anyhow::Result<()> {
+        self.validate_daemon()?;
+        self.validate_settings()
+    }
+
+    /// The checks of the daemon's own settings.
+    fn validate_daemon(&self) -> anyhow::Result<()> {
         if self.input.dbc.is_some() != self.input.mapping.is_some() {
             bail!(
                 "input.dbc and input.mapping: give both (or input.profile, whose files fill in \
@@ -367,6 +515,37 @@ impl Config {
                 self.vehicle.initial_odometer_km
             );
         }
+        let o = &self.outputs;
+        match o.fsync.as_str() {
+            "always" => {}
+            "interval" => {
+                if o.fsync_interval_ms == 0 || o.fsync_interval_ms > 60_000 {
+                    bail!(
+                        "outputs.fsync_interval_ms: must be 1..=60000 (got {})",
+                        o.fsync_interval_ms
+                    );
+                }
+            }
+            other => bail!("outputs.fsync: must be \"always\" or \"interval\" (got \"{other}\")"),
+        }
+        if !(o.rotate_mib.is_finite() && o.rotate_mib >= 0.001 && o.rotate_mib <= 4096.0) {
+            bail!(
+                "outputs.rotate_mib: must be 0.001..=4096 (got {})",
+                o.rotate_mib
+            );
+        }
+        if o.transmit && o.transmit_interface.is_none() {
+            bail!("outputs.transmit_interface: required when outputs.transmit = true");
+        }
+        if self.log.counters_interval_s == 0 {
+            bail!("log.counters_interval_s: must be >= 1");
+        }
+        self.validate_mqtt()
+    }
+
+    /// The checks of the monitor's settings in effect (keys named as in the daemon's file when
+    /// they come from there, as in the monitor file otherwise).
+    fn validate_settings(&self) -> anyhow::Result<()> {
         let e = &self.events;
         positive("events.min_speed_kmh", e.min_speed_kmh)?;
         positive("events.min_decel_g", e.min_decel_g)?;
@@ -433,54 +612,34 @@ impl Config {
                 a.clearance_probability
             );
         }
-        let o = &self.outputs;
-        match o.fsync.as_str() {
-            "always" => {}
-            "interval" => {
-                if o.fsync_interval_ms == 0 || o.fsync_interval_ms > 60_000 {
-                    bail!(
-                        "outputs.fsync_interval_ms: must be 1..=60000 (got {})",
-                        o.fsync_interval_ms
-                    );
-                }
-            }
-            other => bail!("outputs.fsync: must be \"always\" or \"interval\" (got \"{other}\")"),
-        }
-        if !(o.rotate_mib.is_finite() && o.rotate_mib >= 0.001 && o.rotate_mib <= 4096.0) {
-            bail!(
-                "outputs.rotate_mib: must be 0.001..=4096 (got {})",
-                o.rotate_mib
-            );
-        }
-        if o.transmit && o.transmit_interface.is_none() {
-            bail!("outputs.transmit_interface: required when outputs.transmit = true");
-        }
-        if self.log.counters_interval_s == 0 {
-            bail!("log.counters_interval_s: must be >= 1");
-        }
-        self.validate_observer()?;
-        self.validate_mqtt()
+        self.validate_observer()
     }
 
     fn validate_observer(&self) -> anyhow::Result<()> {
+        // `[observer.features]` in the daemon's file, `[features]` in the monitor file.
+        let pre = if self.monitor.is_some() {
+            ""
+        } else {
+            "observer."
+        };
         let f = &self.observer.features;
-        positive("observer.features.crest_factor", f.crest_factor)?;
+        positive(&format!("{pre}features.crest_factor"), f.crest_factor)?;
         if !(f.sensor.quant_step_deg.is_finite() && f.sensor.quant_step_deg >= 0.0) {
             bail!(
-                "observer.features.sensor.quant_step_deg: must be >= 0 (0 = measured per event) (got {})",
+                "{pre}features.sensor.quant_step_deg: must be >= 0 (0 = measured per event) (got {})",
                 f.sensor.quant_step_deg
             );
         }
         if !(f.sensor.noise_deg.is_finite() && f.sensor.noise_deg >= 0.0) {
             bail!(
-                "observer.features.sensor.noise_deg: must be >= 0 (got {})",
+                "{pre}features.sensor.noise_deg: must be >= 0 (got {})",
                 f.sensor.noise_deg
             );
         }
         self.observer
             .estimator
             .validate()
-            .map_err(|e| anyhow::anyhow!("observer.{e}"))?;
+            .map_err(|e| anyhow::anyhow!("{pre}{e}"))?;
         Ok(())
     }
 

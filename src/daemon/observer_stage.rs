@@ -4,9 +4,10 @@
 //!
 //! Persistence across restarts ([`super::state`]): the clearance posterior the daemon reports
 //! is held by this adapter's own [`Estimator`] (the observer's public estimator type, same
-//! table and `[observer.estimator]` settings), fed with each used event's features exactly as the
+//! table and `[estimator]` settings), fed with each used event's features exactly as the
 //! observer feeds its own, with the daemon's persisted odometer at the event's brake onset as
-//! the distance for the wear model. [`EventStage::save`] returns the estimator's evidence, one [`Evidence`] per used
+//! the distance for the wear model. [`EventStage::save`] returns the estimator's evidence, one
+//! [`Evidence`] per used
 //! event, and [`EventStage::restore`] replays it into a fresh estimator, so an estimate keeps
 //! accumulating across daemon runs: two runs over logs A then B end with the same posterior as
 //! one run over A+B. (The observer's estimator exposes no way to set its posterior directly;
@@ -75,27 +76,16 @@ pub struct ObserverStage {
 }
 
 impl ObserverStage {
-    /// Copies `[events]` and `[alerts]` into the observer's configuration; `table` is the loaded
-    /// `vehicle.table` (without it events and amplitudes still flow, no clearance estimate).
+    /// Runs the observer on the monitor's settings in effect (`cfg.settings`); `table` is the
+    /// loaded `vehicle.table` (without it events and amplitudes still flow, no clearance
+    /// estimate).
     pub fn new(cfg: &Config, table: Option<ResponseTable>) -> anyhow::Result<ObserverStage> {
-        let mut oc = ObserverConfig::default();
-        let (e, a) = (&cfg.events, &cfg.alerts);
-        oc.events.min_speed_kmh = e.min_speed_kmh;
-        oc.events.max_speed_kmh = e.max_speed_kmh;
-        oc.events.min_decel_g = e.min_decel_g;
-        oc.events.max_decel_g = e.max_decel_g;
-        oc.events.max_steer_deg = e.max_steer_deg;
-        oc.alerts.clearance_mm = a.clearance_mm;
-        oc.alerts.clearance_probability = a.clearance_probability;
-        oc.alerts.shimmy_deg = a.shimmy_deg;
-        oc.alerts.shimmy_speed_min_kmh = a.shimmy_speed_min_kmh;
-        oc.alerts.shimmy_speed_max_kmh = a.shimmy_speed_max_kmh;
+        let mut oc = cfg.settings.clone();
+        let a = &cfg.alerts;
         // The observer's own rule looks back at most MAX_WINDOW events; the daemon's alert
         // state (crate::alerts) applies the configured window in full.
         oc.alerts.shimmy_window = a.shimmy_window.min(MAX_WINDOW);
         oc.alerts.shimmy_confirm = a.shimmy_confirm.min(oc.alerts.shimmy_window);
-        oc.features = cfg.observer.features.clone();
-        oc.estimator = cfg.observer.estimator.clone();
         let has_table = table.is_some();
         let est = match &table {
             Some(t) => Some((

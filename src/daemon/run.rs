@@ -468,12 +468,13 @@ impl Daemon {
             Ok(new) => {
                 if new.input != self.cfg.input
                     || new.events != self.cfg.events
+                    || new.settings.events != self.cfg.settings.events
                     || new.outputs != self.cfg.outputs
                     || new.vehicle != self.cfg.vehicle
                     || new.observer != self.cfg.observer
                     || new.mqtt != self.cfg.mqtt
                 {
-                    log("SIGHUP: [input], [vehicle], [events], [outputs], [observer] or [mqtt] changed: these take effect after a restart");
+                    log("SIGHUP: [input], [vehicle], [outputs], [mqtt] or the monitor's [events], [features] or [estimator] changed: these take effect after a restart");
                 }
                 self.cfg.alerts = new.alerts;
                 self.cfg.log = new.log;
@@ -543,6 +544,7 @@ fn identify_car(cfg: &Config, replay: &[PathBuf]) -> anyhow::Result<(PathBuf, Op
 /// Runs the daemon until the input ends (replay) or SIGTERM/SIGINT.
 pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
     let mut cfg = Config::load_with_profile(&opts.config, opts.profile.as_deref())?;
+    cfg.print_warnings();
     let replay = if opts.replay.is_empty() {
         cfg.input.replay.clone()
     } else {

@@ -10,22 +10,36 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Thresholds (`[alerts]` of config/observer.toml). The keys are those of shimmyd's `[alerts]`
-/// ([`crate::alerts::AlertsSection`]), so one name means one setting everywhere; the earlier
-/// names ([`DEPRECATED_KEYS`]) are still read, with a deprecation warning.
+/// Thresholds and hysteresis of the two alerts (`[alerts]` of config/observer.toml, the
+/// monitor's settings file). This one table serves every command: `shimmy estimate` applies the
+/// raise thresholds, shimmyd's alert lifecycle ([`crate::alerts`], whose `AlertsSection` is this
+/// type) also the clear thresholds. The earlier names ([`DEPRECATED_KEYS`]) are still read, with
+/// a deprecation warning.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct AlertConfig {
+    /// Clearance that raises the clearance alert (mm), article §4: replace beyond 0.1 mm.
     pub clearance_mm: f64,
+    /// Raise when P(clearance > clearance_mm) is at least this ...
     pub clearance_probability: f64,
+    /// ... clear (shimmyd) when it falls below this (hysteresis).
+    pub clearance_clear_probability: f64,
+    /// Steering-wheel shimmy amplitude that raises the shimmy alert (deg), article §4: 0.2°.
     #[serde(alias = "shimmy_amplitude_deg")]
     pub shimmy_deg: f64,
+    /// Initial-speed window of the braking events the shimmy alert looks at (km/h).
     #[serde(alias = "shimmy_speed_lo_kmh")]
     pub shimmy_speed_min_kmh: f64,
     #[serde(alias = "shimmy_speed_hi_kmh")]
     pub shimmy_speed_max_kmh: f64,
+    /// Raise when at least `shimmy_confirm` of the last `shimmy_window` events in the speed
+    /// window are above `shimmy_deg`.
     pub shimmy_window: usize,
     pub shimmy_confirm: usize,
+    /// Clear (shimmyd) only when at most `shimmy_clear_max` of the last `shimmy_window` events
+    /// are above `shimmy_clear_deg` (hysteresis: lower than `shimmy_deg`).
+    pub shimmy_clear_deg: f64,
+    pub shimmy_clear_max: usize,
 }
 
 impl Default for AlertConfig {
@@ -33,11 +47,14 @@ impl Default for AlertConfig {
         AlertConfig {
             clearance_mm: 0.1,
             clearance_probability: 0.9,
+            clearance_clear_probability: 0.5,
             shimmy_deg: 0.2,
             shimmy_speed_min_kmh: 50.0,
             shimmy_speed_max_kmh: 60.0,
             shimmy_window: 5,
             shimmy_confirm: 2,
+            shimmy_clear_deg: 0.15,
+            shimmy_clear_max: 0,
         }
     }
 }
