@@ -236,8 +236,14 @@ fn open_live(ifaces: &[String], ids: Option<&[(u32, bool)]>) -> anyhow::Result<I
                 })
                 .collect()
         });
-        let mut src = LiveSource::open_waiting(cfg)
-            .with_context(|| format!("input.interfaces: cannot open {name}"))?;
+        // Bind the socket now when the interface is up, so that no frame sent after the
+        // daemon says it started is missed; an interface not there yet is waited for (the
+        // first read connects, with backoff).
+        let mut src = match LiveSource::open(cfg.clone()) {
+            Ok(src) => src,
+            Err(_) => LiveSource::open_waiting(cfg)
+                .with_context(|| format!("input.interfaces: cannot open {name}"))?,
+        };
         let st = Arc::new(std::sync::Mutex::new(SourceStats::default()));
         stops.push(src.stop_handle());
         stats.push(st.clone());
