@@ -538,16 +538,18 @@ impl Observer {
                 format!("below {:.2} mm ({} events)", s.below_mm, s.events_used),
             ),
         };
+        let z_max = self.cfg.estimator.fit_z_max;
         let model_fit = self.estimator.as_ref().and_then(|e| {
             let (dev, dof) = e.fit()?;
-            Some(fit::ModelFit::new(dev, dof, e.config().fit_z_max))
+            Some(fit::ModelFit::new(dev, dof, z_max))
         });
         let verdict = match model_fit {
             Some(f) if !f.fits => format!(
-                "{verdict}; but the model does not fit this vehicle: its events scatter more                  about every clearance's prediction than the response table's vehicles do                  (goodness of fit z = {:.1} over {:.0} features, limit {:.1}), so the interval                  is not to be trusted; see docs/ACCURACY.md",
-                f.z,
-                f.dof,
-                self.estimator.as_ref().map_or(0.0, |e| e.config().fit_z_max)
+                "{verdict}; but the model does not fit this vehicle: its events scatter more \
+                 about every clearance's prediction than the response table's vehicles do \
+                 (goodness of fit z = {:.1} over {:.0} features, limit {z_max:.1}), so the \
+                 interval is not to be trusted; see docs/ACCURACY.md",
+                f.z, f.dof
             ),
             _ => verdict,
         };
