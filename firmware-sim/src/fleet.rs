@@ -199,13 +199,23 @@ impl Nominal {
 
     fn load_or(args: &FleetArgs, profile: Option<&Profile>) -> anyhow::Result<Nominal> {
         let params = match (&args.vehicle, profile) {
-            (Some(p), _) => VehicleParams::from_toml_file(p)
-                .with_context(|| format!("--vehicle {}", p.display()))?,
+            (Some(p), _) => return Nominal::from_file(p, "--vehicle"),
             (None, Some(p)) => p.vehicle.clone(),
             (None, None) => VehicleParams::default(),
         };
+        Nominal::new(params)
+    }
+
+    fn new(params: VehicleParams) -> anyhow::Result<Nominal> {
         let hash = vehicle_hash(&params)?;
         Ok(Nominal { params, hash })
+    }
+
+    /// The vehicle of the TOML file `path`, given with the option `flag`.
+    fn from_file(path: &Path, flag: &str) -> anyhow::Result<Nominal> {
+        let params = VehicleParams::from_toml_file(path)
+            .with_context(|| format!("{flag} {}", path.display()))?;
+        Nominal::new(params)
     }
 }
 
@@ -231,12 +241,7 @@ impl Setup {
         };
         let nominal = Nominal::load_or(args, profile.as_ref())?;
         let plant = match &args.plant {
-            Some(p) => {
-                let params = VehicleParams::from_toml_file(p)
-                    .with_context(|| format!("--plant {}", p.display()))?;
-                let hash = vehicle_hash(&params)?;
-                Some(Nominal { params, hash })
-            }
+            Some(p) => Some(Nominal::from_file(p, "--plant")?),
             None => None,
         };
         let (db, bus, dbc_path) = match &profile {

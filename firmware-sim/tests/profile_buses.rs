@@ -30,6 +30,15 @@ use shimmy::dbc::{Database, Signal, ValueKind};
 use shimmy::observer::ObserverConfig;
 use shimmy::profile::bus::BusSpec;
 use shimmy::profile::Profile;
+
+/// The profiles shipped in config/vehicles.
+const SHIPPED: [&str; 5] = [
+    "shimmy_reference",
+    "toyota_rav4",
+    "vw_mqb",
+    "honda_civic",
+    "hyundai_kia",
+];
 use shimmy::signals::checksum::ChecksumKind;
 use shimmy::signals::{Mapper, Outcome};
 use shimmy::source::log::LogReader;
@@ -559,13 +568,7 @@ fn toyota_rav4_bus_end_to_end_and_like_the_real_log() {
 /// loads against its DBC (the static half of the checks above, for all five at once).
 #[test]
 fn every_shipped_profile_has_a_bus_matching_its_sensor() {
-    for name in [
-        "shimmy_reference",
-        "toyota_rav4",
-        "vw_mqb",
-        "honda_civic",
-        "hyundai_kia",
-    ] {
+    for name in SHIPPED {
         let Some(p) = profile(name) else {
             continue;
         };
@@ -610,13 +613,7 @@ mod counting_alloc;
 fn polling_a_profile_bus_allocates_nothing() {
     use firmware_sim::bus::{Bus, MAX_BATCH};
     use firmware_sim::scenario::{Faults, Sensors};
-    for name in [
-        "shimmy_reference",
-        "toyota_rav4",
-        "vw_mqb",
-        "honda_civic",
-        "hyundai_kia",
-    ] {
+    for name in SHIPPED {
         let Some(p) = profile(name) else {
             continue;
         };

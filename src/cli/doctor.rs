@@ -86,11 +86,7 @@ pub struct Args {
     pub logs: Vec<PathBuf>,
 }
 
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Format {
-    Text,
-    Json,
-}
+pub use super::TextOrJson as Format;
 
 /// The setup the arguments ask for (identifying the logs when neither a profile nor a mapping
 /// is given).

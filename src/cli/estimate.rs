@@ -101,11 +101,7 @@ pub struct Args {
     pub logs: Vec<PathBuf>,
 }
 
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Format {
-    Json,
-    Text,
-}
+pub use super::TextOrJson as Format;
 
 /// Finds the DBC a mapping names (see [`crate::profile::resolve_dbc`] for where it looks).
 pub fn resolve_dbc(mapping_path: &Path, mapping: &MappingConfig) -> anyhow::Result<PathBuf> {

@@ -77,11 +77,7 @@ pub struct Args {
     pub logs: Vec<PathBuf>,
 }
 
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Format {
-    Text,
-    Json,
-}
+pub use super::TextOrJson as Format;
 
 /// One verdict with the logs it is about.
 #[derive(serde::Serialize)]

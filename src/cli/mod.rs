@@ -10,3 +10,11 @@ pub mod identify;
 pub mod report;
 pub mod reproduce;
 pub mod simulate;
+
+/// `--format` of the commands that print either a report for people or one JSON document
+/// (`estimate`, `identify`, `doctor`).
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TextOrJson {
+    Text,
+    Json,
+}
