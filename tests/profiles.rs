@@ -29,7 +29,8 @@ fn every_shipped_profile_loads_and_its_mapping_fits_its_dbc() {
             .unwrap_or_else(|e| panic!("{name}: {e:#}"));
         assert_eq!(p.name, name);
         let (db, _) = Database::load(&p.dbc_path).unwrap();
-        Mapper::new(&db, &p.mapping).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        let m = Mapper::new(&db, &p.mapping).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        assert!(m.warnings().is_empty(), "{name}: {:?}", m.warnings());
         p.sensor.validate().unwrap();
         // Out of the box: the profile ships its table, built for its chassis, prior and sensor.
         let t = p

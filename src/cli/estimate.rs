@@ -279,6 +279,9 @@ pub fn estimate_files(
             dbc_path.display()
         )
     })?;
+    for w in feeder.mapper().warnings() {
+        eprintln!("shimmy estimate: mapping: {w}");
+    }
     let mut obs = Observer::new(cfg, table)?;
     for log in logs {
         let mut src =

@@ -259,6 +259,10 @@ pub struct Detector {
     speed_hist: heapless::Deque<(i64, f64), 64>,
     last_speed: Option<(i64, f64)>,
     last_decel: Option<f64>,
+    /// The time `last_decel` stands for: the acceleration sample's, or the middle of the speed
+    /// differences' span (a backward difference would lag by half the span and, as samples are
+    /// taken from the onset to the end only, bias the plateau low).
+    last_decel_t_ns: i64,
     odometer_m: f64,
     // current event
     t_start_ns: i64,
@@ -301,6 +305,7 @@ impl Detector {
             speed_hist: heapless::Deque::new(),
             last_speed: None,
             last_decel: None,
+            last_decel_t_ns: 0,
             odometer_m: 0.0,
             t_start_ns: 0,
             v0_mps: 0.0,
@@ -376,14 +381,7 @@ impl Detector {
                 }
             }
             State::Braking => {
-                if let (Some(d), true) = (
-                    self.last_decel,
-                    s.speed_mps.is_some() || s.accel_mps2.is_some(),
-                ) {
-                    if self.decel.len() < self.decel.capacity() {
-                        self.decel.push_back((s.t_ns, d));
-                    }
-                }
+                self.collect_decel(s, s.t_ns);
                 let stopped = self
                     .last_speed
                     .is_some_and(|(_, v)| v < self.cfg.stop_speed_mps);
@@ -395,6 +393,7 @@ impl Detector {
                 }
             }
             State::Tail { t_end_ns, stopped } => {
+                self.collect_decel(s, t_end_ns);
                 let tail_ns = (self.cfg.tail_s * 1e9) as i64;
                 if s.t_ns >= t_end_ns + tail_ns || self.truncated {
                     return self.finish(t_end_ns, stopped);
@@ -454,6 +453,7 @@ impl Detector {
                     let dt = secs(tb - ta);
                     if dt >= 0.5 * self.cfg.diff_span_s {
                         self.last_decel = Some((va - vb) / dt);
+                        self.last_decel_t_ns = ta + (tb - ta) / 2;
                     }
                 }
             }
@@ -461,6 +461,25 @@ impl Detector {
         if let Some(a) = s.accel_mps2 {
             self.from_accel = true;
             self.last_decel = Some(-a);
+            self.last_decel_t_ns = s.t_ns;
+        }
+    }
+
+    /// Keeps the deceleration this update brought when the time it stands for lies between the
+    /// onset and `until_ns` (the end of the application).
+    fn collect_decel(&mut self, s: &Sample, until_ns: i64) {
+        if s.speed_mps.is_none() && s.accel_mps2.is_none() {
+            return;
+        }
+        let t = self.last_decel_t_ns;
+        if let Some(d) = self.last_decel {
+            let fresh = self.decel.back().is_none_or(|&(tp, _)| t > tp);
+            if fresh
+                && (self.t_start_ns..=until_ns).contains(&t)
+                && self.decel.len() < self.decel.capacity()
+            {
+                self.decel.push_back((t, d));
+            }
         }
     }
 

@@ -31,7 +31,7 @@ pub mod mapping;
 use anyhow::bail;
 use serde::Serialize;
 
-use crate::dbc::{Database, Message, Signal};
+use crate::dbc::{Database, Message, Signal, ValueKind};
 use crate::wire::{Frame, FrameKind};
 
 use checksum::{ChecksumError, ChecksumKind};
@@ -274,7 +274,38 @@ struct AccelQ {
     scale: f64,
 }
 
+/// Standard gravity (m/s²), for the g figures of messages.
+const STANDARD_GRAVITY: f64 = 9.806_65;
+
+/// The hardest braking a mapped acceleration must read without clipping (m/s²): 0.8 g, the top
+/// of the deceleration range the model covers (MODEL.md §6). A narrower signal (Honda's 9-bit
+/// `KINEMATICS.LONG_ACCEL` holds ±5.1 m/s²) would flatten every harder plateau to its limit.
+const BRAKING_DECEL_MPS2: f64 = 0.8 * STANDARD_GRAVITY;
+
 impl AccelQ {
+    /// The largest and smallest acceleration (m/s², forward positive) the signal's bits can
+    /// carry after scaling, unit conversion and inversion; infinite for floats.
+    fn range_mps2(&self) -> (f64, f64) {
+        let s = &self.sig.signal;
+        let (raw_lo, raw_hi) = match s.kind {
+            ValueKind::Unsigned => (0.0, 2f64.powi(s.size as i32) - 1.0),
+            ValueKind::Signed => (
+                -(2f64.powi(s.size as i32 - 1)),
+                2f64.powi(s.size as i32 - 1) - 1.0,
+            ),
+            ValueKind::Float32 | ValueKind::Float64 => return (f64::INFINITY, f64::NEG_INFINITY),
+        };
+        let ends = [raw_lo, raw_hi].map(|raw| {
+            let v = self.unit.to_si(self.scale * (raw * s.factor + s.offset));
+            if self.invert {
+                -v
+            } else {
+                v
+            }
+        });
+        (ends[0].max(ends[1]), ends[0].min(ends[1]))
+    }
+
     fn value(&self, data: &[u8]) -> Option<f64> {
         let v = self.unit.to_si(self.scale * self.sig.phys(data)?);
         Some(if self.invert { -v } else { v })
@@ -565,8 +596,25 @@ impl Mapper {
                 scale: a.scale,
             }))
         };
-        let accel = accel_q("accel", &cfg.accel)?;
+        let mut accel = accel_q("accel", &cfg.accel)?;
         let lat = accel_q("lat_accel", &cfg.lat_accel)?;
+        if let (Some(q), Some(a)) = (&accel, &cfg.accel) {
+            let (_, min_mps2) = q.range_mps2();
+            if -min_mps2 < BRAKING_DECEL_MPS2 {
+                r.warnings.push(format!(
+                    "accel: {}.{} reads at most {:.2} m/s² ({:.2} g) of deceleration, less than the \
+                     {:.2} g of the hardest braking the model covers, so braking would clip; the \
+                     deceleration is taken from the speed's derivative instead (map a wider \
+                     signal, or remove [accel], to silence this)",
+                    a.message,
+                    a.signal,
+                    -min_mps2,
+                    -min_mps2 / STANDARD_GRAVITY,
+                    BRAKING_DECEL_MPS2 / STANDARD_GRAVITY,
+                ));
+                accel = None;
+            }
+        }
         let yaw = match &cfg.yaw_rate {
             Some(y) => {
                 let (slot, msg) = r.slot("yaw_rate.message", &y.message)?;
