@@ -46,7 +46,7 @@ impl Default for AlertConfig {
     fn default() -> Self {
         AlertConfig {
             clearance_mm: 0.1,
-            clearance_probability: 0.9,
+            clearance_probability: 0.7,
             clearance_clear_probability: 0.5,
             shimmy_deg: 0.2,
             shimmy_speed_min_kmh: 50.0,

@@ -112,7 +112,7 @@ impl Default for EstimatorConfig {
             evidence_half_life_km: 5000.0,
             misfit_std: 0.0,
             damping_grid: 9,
-            evidence_power: 0.4,
+            evidence_power: 0.275,
             phase: "either".into(),
             phase_grid: 8,
             unbalance_grid: 7,
