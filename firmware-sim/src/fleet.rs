@@ -606,7 +606,7 @@ pub struct Scores {
     pub alert_rate_worn: (usize, usize),
     /// Alert raised / vehicles with c ≤ 0.07 mm (target ≤ 0.05).
     pub alert_rate_new: (usize, usize),
-    /// Mean |median − c| over vehicles with c ≥ 0.1 mm (target ≤ 0.02 mm).
+    /// Mean |median − c| over vehicles with c ≥ 0.1 mm (target ≤ 0.03 mm on the column fleets; the earlier 0.02 mm is retired, docs/ACCURACY.md).
     pub mae_mm_above_0p1: f64,
     /// Interval contains c / all vehicles (target 0.85–0.95).
     pub coverage: (usize, usize),
@@ -817,7 +817,7 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
         frac(s.alert_rate_new)
     );
     println!(
-        "mean absolute error, c >= 0.1 mm (target <= 0.020 mm): {:.3} mm",
+        "mean absolute error, c >= 0.1 mm (target <= 0.030 mm): {:.3} mm",
         s.mae_mm_above_0p1
     );
     println!(
