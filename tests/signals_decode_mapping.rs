@@ -60,10 +60,12 @@ fn rav4_log_prints_every_mapped_frame_with_validity() {
             assert!(!b, "no braking in this log");
         }
         if let Some(s) = v["speed_kmh"].as_f64() {
-            assert!((29.0..=73.1).contains(&s), "{s}");
+            // The wheel speeds' mean (the speedometer's SPEED reads 29.4-73.1 km/h).
+            assert!((28.0..=72.0).contains(&s), "{s}");
         }
     }
-    assert_eq!(n, 4974 + 2487 + 2487 + 4974);
+    // STEER_ANGLE_SENSOR, WHEEL_SPEEDS and KINEMATICS at 83 Hz, BRAKE_MODULE at 41 Hz.
+    assert_eq!(n, 4974 + 4974 + 2487 + 4974);
     assert_eq!(steer_frames, 4974);
     assert_eq!((lo, hi), (-4.6, 2.5));
     assert!(

@@ -28,7 +28,7 @@ use firmware_sim::truth::GroundTruth;
 use firmware_sim::{FirmwareSim, RunInfo, Scenario};
 use shimmy::dbc::{Database, Signal, ValueKind};
 use shimmy::observer::ObserverConfig;
-use shimmy::profile::bus::BusSpec;
+use shimmy::profile::bus::{BusSpec, Quantity};
 use shimmy::profile::Profile;
 
 /// The profiles shipped in config/vehicles.
@@ -342,20 +342,37 @@ fn end_to_end(name: &str) -> Option<Drive> {
         );
     }
     // Nothing is clamped to what a signal's bits hold, except an acceleration signal too
-    // narrow for the drive's braking (Honda's LONG_ACCEL: ±5.1 m/s²).
+    // narrow for the drive's braking (Honda's KINEMATICS.LONG_ACCEL: ±5.1 m/s², which the
+    // Honda mapping therefore does not read).
     let max_accel = d
         .samples
         .values()
         .map(|s| s.accel_mps2.abs())
         .fold(0.0, f64::max);
-    let narrow_accel = match (&map.accel, accel_sig) {
-        (Some(a), Some(((lo, hi), _))) if lo > -max_accel || hi < max_accel => Some(&a.message),
-        _ => None,
-    };
+    let narrow_accel: Vec<&str> = d
+        .bus
+        .messages
+        .iter()
+        .filter(|m| {
+            m.fields.iter().any(|f| {
+                if f.quantity != Quantity::LongAccelMps2 {
+                    return false;
+                }
+                let (lo, hi) = bits_range(signal(&d.db, &m.name, &f.signal));
+                let reach = max_accel * f.scale.abs();
+                lo > -reach || hi < reach
+            })
+        })
+        .map(|m| m.name.as_str())
+        .collect();
     for st in &d.truth.messages {
-        if Some(&st.name) != narrow_accel {
+        if !narrow_accel.contains(&st.name.as_str()) {
             assert_eq!(st.encode_clamped, 0, "{name}: {st:?}");
         }
+    }
+    if name == "honda_civic" {
+        assert_eq!(narrow_accel, ["KINEMATICS"], "{name}");
+        assert!(map.accel.is_none(), "{name}: maps a clipping acceleration");
     }
 
     // The truth's braking events are on the bus: the pedal closes within a brake-message period

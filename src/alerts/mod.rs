@@ -384,8 +384,11 @@ mod tests {
             p_above: Some(p),
             events_used: 7,
         };
+        // Just below the raise probability: nothing.
+        let below = cfg.clearance_probability - 0.01;
+        assert!(below > cfg.clearance_clear_probability);
         assert!(b
-            .on_event(&cfg, &ev(0.0, 80.0, 0.1), Some(&est(0.89)))
+            .on_event(&cfg, &ev(0.0, 80.0, 0.1), Some(&est(below)))
             .is_empty());
         let t = b.on_event(&cfg, &ev(1.0, 80.0, 0.1), Some(&est(0.95)));
         assert_eq!(kinds(&t), [("raised", Kind::Clearance)]);
@@ -399,9 +402,15 @@ mod tests {
         assert_eq!(a.evidence.events[0].v0_kmh, 80.0);
         assert!(a.guidance.contains("0.1 mm"));
         assert!(a.summary.contains("0.120-0.190"));
-        let t = b.on_event(&cfg, &ev(2.0, 80.0, 0.1), Some(&est(0.6)));
+        // Between the clear and the raise probability: still open (hysteresis).
+        let between = 0.5 * (cfg.clearance_clear_probability + cfg.clearance_probability);
+        let t = b.on_event(&cfg, &ev(2.0, 80.0, 0.1), Some(&est(between)));
         assert_eq!(kinds(&t), [("updated", Kind::Clearance)]);
-        let t = b.on_event(&cfg, &ev(3.0, 80.0, 0.1), Some(&est(0.4)));
+        let t = b.on_event(
+            &cfg,
+            &ev(3.0, 80.0, 0.1),
+            Some(&est(cfg.clearance_clear_probability - 0.1)),
+        );
         assert_eq!(kinds(&t), [("cleared", Kind::Clearance)]);
     }
 
