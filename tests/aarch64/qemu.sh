@@ -37,6 +37,7 @@ BINFMT_CONF=/usr/lib/binfmt.d/qemu-aarch64.conf # shipped by Debian's qemu-user-
 # The subset (why these: tests/aarch64_qemu.rs). Each is an integration test target in tests/.
 TESTS=(dbc_vectors logs_candump logs_vector logs_mf4 daemon_replay journal_crash)
 MODE=run
+CARGO_BIN=${CARGO:-cargo} # the cargo that runs the calling test, else the one on the PATH
 
 while [ $# -gt 0 ]; do
     case $1 in
@@ -69,12 +70,12 @@ binfmt_ready() {
 # Prints one line per missing piece; returns 1 if anything is missing.
 check() {
     local missing=() sysroot
-    command -v cargo >/dev/null || missing+=("cargo")
+    command -v "$CARGO_BIN" >/dev/null || missing+=("cargo")
     command -v aarch64-linux-gnu-gcc >/dev/null ||
         missing+=("the cross linker aarch64-linux-gnu-gcc (apt-get install gcc-aarch64-linux-gnu)")
     [ -e "$SYSROOT/lib/ld-linux-aarch64.so.1" ] && [ -e "$SYSROOT/lib/libc.so" ] ||
         missing+=("the arm64 glibc in $SYSROOT (apt-get install libc6-dev-arm64-cross)")
-    sysroot=$(rustc --print sysroot 2>/dev/null || true)
+    sysroot=$("${RUSTC:-rustc}" --print sysroot 2>/dev/null || true)
     compgen -G "$sysroot/lib/rustlib/$TRIPLE/lib/libstd-*.rlib" >/dev/null ||
         missing+=("Rust's std for $TRIPLE (rustup target add $TRIPLE)")
     [ -n "$(qemu_bin)" ] ||
@@ -136,7 +137,7 @@ build() {
     local args
     mapfile -t args < <(test_args)
     log "building for $TRIPLE into $TARGET_DIR: ${TESTS[*]}"
-    (cd "$ROOT" && cargo test --release --target "$TRIPLE" --target-dir "$TARGET_DIR" \
+    (cd "$ROOT" && "$CARGO_BIN" test --release --target "$TRIPLE" --target-dir "$TARGET_DIR" \
         --no-run "${args[@]}")
 }
 
@@ -150,7 +151,7 @@ run() {
     }
     t1=$(date +%s%N)
     log "running under $(qemu_bin) -L $SYSROOT"
-    (cd "$ROOT" && cargo test --release --target "$TRIPLE" --target-dir "$TARGET_DIR" \
+    (cd "$ROOT" && "$CARGO_BIN" test --release --target "$TRIPLE" --target-dir "$TARGET_DIR" \
         --no-fail-fast "${args[@]}") 2>&1 || rc=$?
     t2=$(date +%s%N)
     echo "AARCH64-SUMMARY rc=$rc build_s=$(secs "$t0" "$t1") run_s=$(secs "$t1" "$t2") tests=${TESTS[*]}"
