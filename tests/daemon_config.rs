@@ -79,7 +79,7 @@ fn broken_configs_name_the_key_and_the_problem() {
             &["alerts.shimmy_speed_min_kmh", "alerts.shimmy_speed_max_kmh"],
         ),
         (
-            "clearance_probability = 0.9",
+            "clearance_probability = 0.7",
             "clearance_probability = 1.5",
             &["alerts.clearance_probability", "1.5"],
         ),
@@ -154,7 +154,7 @@ fn broken_configs_name_the_key_and_the_problem() {
             &["observer.estimator.method", "kalman"],
         ),
         (
-            "evidence_power = 0.4",
+            "evidence_power = 0.275",
             "evidence_power = 1.5",
             &["observer.estimator.evidence_power", "(0, 1]"],
         ),
