@@ -393,7 +393,7 @@ mod tests {
             events_used: 7,
         };
         assert!(b
-            .on_event(&cfg, &ev(0.0, 80.0, 0.1), Some(&est(0.89)))
+            .on_event(&cfg, &ev(0.0, 80.0, 0.1), Some(&est(0.65)))
             .is_empty());
         let t = b.on_event(&cfg, &ev(1.0, 80.0, 0.1), Some(&est(0.95)));
         assert_eq!(kinds(&t), [("raised", Kind::Clearance)]);

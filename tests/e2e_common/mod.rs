@@ -146,7 +146,7 @@ pub fn write_config(dir: &Path, input: &str) -> PathBuf {
          [vehicle]\nparams = {:?}\ntable = {:?}\n\
          [alerts]\nshimmy_deg = 0.2\nshimmy_speed_min_kmh = 50.0\nshimmy_speed_max_kmh = 60.0\n\
          shimmy_confirm = {SHIMMY_CONFIRM}\nshimmy_window = {SHIMMY_WINDOW}\n\
-         clearance_mm = 0.1\nclearance_probability = 0.9\n\
+         clearance_mm = 0.1\nclearance_probability = 0.7\n\
          [outputs]\njournal_dir = \"journal\"\nstate_dir = \"state\"\n\
          [log]\ncounters_interval_s = 1\n",
         ws.join("dbc/shimmy_reference.dbc"),
