@@ -334,7 +334,8 @@ pub fn estimate_files(
     Ok((out, feeder.stats))
 }
 
-/// What `shimmy estimate` prints: the observer's report, and the profile it used.
+/// What `shimmy estimate` prints: the observer's report with the alerts standing, and the
+/// profile it used.
 #[derive(serde::Serialize)]
 struct Output<'a> {
     /// The vehicle profile used (null for a custom --mapping setup).
