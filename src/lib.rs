@@ -18,6 +18,7 @@
 //! | vehicle profiles (DBC, mapping, chassis, table of one car) | [`profile`] | all of the above |
 //! | the monitor pipeline's shared types (events, estimate, the stage trait) | [`monitor`] | [`events`], [`observer`] |
 //! | the maintenance alert rules and their settings | [`alerts`] | [`monitor`] |
+//! | the monitor pipeline (event stage → estimate → alert rules, for shimmyd and `shimmy estimate`) | [`pipeline`] | [`alerts`], [`monitor`], [`observer`] |
 //! | the crash-safe journal | [`journal`] | nothing |
 //! | applications: shimmyd, the `shimmy` commands, reports, doctor | [`daemon`], [`cli`], [`report`], [`doctor`] | everything below |
 //!
@@ -34,6 +35,7 @@ pub mod journal;
 pub mod model;
 pub mod monitor;
 pub mod observer;
+pub mod pipeline;
 pub mod profile;
 pub mod report;
 pub mod shared_data;

@@ -29,6 +29,7 @@ const LAYERS: &[(&str, &[&str])] = &[
     ("vehicle profiles", &["profile"]),
     ("the monitor pipeline's shared types", &["monitor"]),
     ("the alert rules", &["alerts"]),
+    ("the monitor pipeline", &["pipeline"]),
     ("the journal", &["journal"]),
     (
         "applications: daemon, commands, reports",

@@ -1,5 +1,9 @@
-//! Maintenance alerts as shimmyd raises them: lifecycle, hysteresis, de-duplication, evidence
-//! and the maintenance guidance of the source study.
+//! The maintenance alert rules, the only implementation of them: lifecycle, hysteresis,
+//! de-duplication, evidence and the maintenance guidance of the source study. shimmyd and
+//! `shimmy estimate` both run them through the monitor pipeline (`crate::pipeline`), after each
+//! finished braking event, on the same [`EventSummary`] and [`Estimate`]; shimmyd journals every
+//! transition and keeps the book in its state, `shimmy estimate` reports the alerts open at the
+//! end of its logs.
 //!
 //! Two conditions, both evaluated once per finished braking event:
 //! * `shimmy_55kmh`: of the last `shimmy_window` braking events that began inside the speed
@@ -19,7 +23,8 @@
 //! special inspection above 0.2° at 55 km/h, lubrication every 15,000 km); it invents no
 //! other number.
 //!
-//! What it is not: detection or estimation (the observer's) or delivery (journal, bus, MQTT).
+//! What it is not: detection or estimation (the observer's), the wiring from samples to events
+//! (the pipeline's), the settings schema ([`config`]) or delivery (journal, bus, MQTT, report).
 
 pub mod config;
 
@@ -203,7 +208,10 @@ impl AlertBook {
     ) -> Vec<Transition> {
         let mut out = Vec::new();
         if in_window(cfg, ev) && ev.sw_amplitude_deg.is_some() {
-            while self.shimmy_window.len() >= cfg.shimmy_window {
+            // shimmyd's configuration check keeps the window at 1 or more and the confirmation
+            // count at 1 or more; settings read unchecked must not hang or raise on nothing.
+            let window = cfg.shimmy_window.max(1);
+            while self.shimmy_window.len() >= window {
                 self.shimmy_window.pop_front();
             }
             self.shimmy_window.push_back(ev.into());
@@ -233,7 +241,7 @@ impl AlertBook {
                 cfg.shimmy_deg,
                 self.shimmy_window.iter().map(amp).fold(0.0, f64::max)
             );
-            let raise = hits >= cfg.shimmy_confirm;
+            let raise = hits >= cfg.shimmy_confirm.max(1);
             let clear = soft <= cfg.shimmy_clear_max;
             out.extend(self.apply(cfg, Kind::Shimmy55, raise, clear, ev, summary, evidence));
         }
@@ -412,6 +420,21 @@ mod tests {
             Some(&est(cfg.clearance_clear_probability - 0.1)),
         );
         assert_eq!(kinds(&t), [("cleared", Kind::Clearance)]);
+    }
+
+    #[test]
+    fn a_zero_window_or_confirmation_count_neither_hangs_nor_raises_on_nothing() {
+        let cfg = AlertsSection {
+            shimmy_window: 0,
+            shimmy_confirm: 0,
+            ..AlertsSection::default()
+        };
+        let mut b = AlertBook::default();
+        assert!(b.on_event(&cfg, &ev(0.0, 55.0, 0.05), None).is_empty());
+        assert_eq!(b.shimmy_window.len(), 1);
+        let t = b.on_event(&cfg, &ev(10.0, 55.0, 0.3), None);
+        assert_eq!(kinds(&t), [("raised", Kind::Shimmy55)]);
+        assert_eq!(b.shimmy_window.len(), 1);
     }
 
     #[test]

@@ -2,20 +2,25 @@
 //! and alerts as JSON or text).
 //!
 //! This module is the plumbing: logs ([`crate::source::log::LogReader`]) → DBC decoding and
-//! signal mapping ([`crate::signals::Mapper`]) → [`crate::events::Sample`]s → the
-//! [`crate::observer::Observer`]. Policy (events, features, estimator, alerts) lives in
-//! [`crate::events`] and [`crate::observer`]. The per-frame path allocates nothing.
+//! signal mapping ([`crate::signals::Mapper`]) → [`crate::events::Sample`]s → the monitor
+//! pipeline ([`crate::pipeline::Monitor`] over [`crate::pipeline::ObserverStage`]), the same
+//! event stage, estimate and alert rules ([`crate::alerts::AlertBook`], with its lifecycle and
+//! hysteresis) as shimmyd. Policy (events, features, estimator, alerts) lives in
+//! [`crate::events`], [`crate::observer`] and [`crate::alerts`]. The per-frame path allocates
+//! nothing.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 
+use crate::alerts::Alert;
 use crate::dbc::Database;
 use crate::events::Sample;
 use crate::model::VehicleParams;
 use crate::observer::table::{vehicle_hash, ResponseTable};
-use crate::observer::{Observer, ObserverConfig, Report};
+use crate::observer::{ObserverConfig, Report};
+use crate::pipeline::{Monitor, ObserverStage};
 use crate::profile::Profile;
 use crate::signals::mapping::MappingConfig;
 use crate::signals::{Mapper, Outcome, Update};
@@ -39,9 +44,13 @@ use crate::wire::Frame;
 ///   below_mm        the clearance is below this (mm), and `verdict` says "below X mm"
 ///   events          each: t_start, t_end (s, log time), v0_kmh, decel_g, peak_sw_bp_deg, used,
 ///                   unused_reason, rms_sw_bp_deg, sw_amplitude_deg and data quality
-///   alerts          each: kind "clearance" (P(c > 0.1 mm) >= 90 %) or "shimmy_55kmh" (estimated
-///                   steering-wheel amplitude above 0.2 deg in at least 2 of the last 5 events
-///                   starting at 50–60 km/h), t_raised and evidence
+///   alerts          the alerts standing at the end of the logs, decided after each braking
+///                   event exactly as shimmyd decides them: kind "clearance" (raised when
+///                   P(c > 0.1 mm) >= 70 %, standing until it falls below 50 %) or
+///                   "shimmy_55kmh" (raised when the estimated steering-wheel amplitude is above
+///                   0.2 deg in at least 2 of the last 5 events starting at 50–60 km/h, standing
+///                   until none of them is above 0.15 deg); each with id, t_raised, t_updated,
+///                   updates, summary, guidance and evidence (the events and the estimate)
 ///   rejections      why braking gave nothing: brake applications ignored before recording,
 ///                   per reason (too_slow, too_light, too_short; accel_while_braking counts
 ///                   those that read a forward acceleration while the brake was applied, the
@@ -162,7 +171,7 @@ pub struct RunStats {
     pub log: SourceStats,
 }
 
-/// Turns mapped frames into detector samples and feeds the observer.
+/// Turns mapped frames into detector samples.
 pub struct Feeder {
     mapper: Mapper,
     steer_msg: Option<usize>,
@@ -189,15 +198,15 @@ impl Feeder {
         })
     }
 
-    /// Reads a whole source into `obs`.
+    /// Reads a whole source, handing each sample it makes to `sink`.
     pub fn feed_source(
         &mut self,
         src: &mut dyn CanSource,
-        obs: &mut Observer,
+        mut sink: impl FnMut(&Sample),
     ) -> anyhow::Result<()> {
         while let Some(f) = src.next_frame().context("reading log")? {
             if let Some((s, _)) = self.sample(&f) {
-                obs.push(&s);
+                sink(&s);
             }
         }
         let st = src.stats();
@@ -257,14 +266,35 @@ impl Feeder {
     }
 }
 
-/// The whole `estimate` pipeline on files; returns the report and the run counters.
+/// What `shimmy estimate` answers: the observer's report and the alerts standing at the end of
+/// the logs.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Estimation {
+    #[serde(flatten)]
+    pub report: Report,
+    /// The alerts open at the end of the logs (raised after some event and not cleared since),
+    /// decided by the same rules and lifecycle as shimmyd's ([`crate::alerts::AlertBook`]).
+    pub alerts: Vec<Alert>,
+}
+
+/// An [`Estimation`] reads as its report (`e.events`, `e.verdict`, …); only the alerts are its
+/// own.
+impl std::ops::Deref for Estimation {
+    type Target = Report;
+    fn deref(&self) -> &Report {
+        &self.report
+    }
+}
+
+/// The whole `estimate` pipeline on files; returns the report with the standing alerts, and
+/// the run counters.
 pub fn estimate_files(
     mapping_path: &Path,
     dbc: Option<&Path>,
     table: Option<ResponseTable>,
     cfg: ObserverConfig,
     logs: &[PathBuf],
-) -> anyhow::Result<(Report, RunStats)> {
+) -> anyhow::Result<(Estimation, RunStats)> {
     let mapping = MappingConfig::from_toml_file(mapping_path)
         .with_context(|| format!("mapping {}", mapping_path.display()))?;
     let dbc_path = match dbc {
@@ -282,28 +312,36 @@ pub fn estimate_files(
     for w in feeder.mapper().warnings() {
         eprintln!("shimmy estimate: mapping: {w}");
     }
-    let mut obs = Observer::new(cfg, table)?;
+    let rules = cfg.alerts.clone();
+    let mut monitor = Monitor::new(ObserverStage::new(&cfg, table)?, rules);
     for log in logs {
         let mut src =
             LogReader::open(log).with_context(|| format!("cannot open log {}", log.display()))?;
         feeder
-            .feed_source(&mut src, &mut obs)
+            .feed_source(&mut src, |s| {
+                monitor.push(s);
+            })
             .with_context(|| format!("log {}", log.display()))?;
         for s in src.take_skips() {
             eprintln!("shimmy estimate: skipped {}: {}", s.location, s.reason);
         }
     }
-    obs.finish();
-    Ok((obs.report(), feeder.stats))
+    monitor.finish();
+    let out = Estimation {
+        report: monitor.stage().observer().report(),
+        alerts: monitor.standing().to_vec(),
+    };
+    Ok((out, feeder.stats))
 }
 
-/// What `shimmy estimate` prints: the observer's report, and the profile it used.
+/// What `shimmy estimate` prints: the observer's report with the alerts standing, and the
+/// profile it used.
 #[derive(serde::Serialize)]
 struct Output<'a> {
     /// The vehicle profile used (null for a custom --mapping setup).
     profile: Option<&'a str>,
     #[serde(flatten)]
-    report: &'a Report,
+    report: &'a Estimation,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -365,6 +403,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             if let Some(p) = &profile {
                 writeln!(out, "vehicle: {}", p.label())?;
             }
+            let alerts = &report.alerts;
+            let report = &report.report;
             writeln!(out, "{}", report.verdict)?;
             writeln!(
                 out,
@@ -379,11 +419,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             if rej.worth_reporting() {
                 writeln!(out, "braking: {}", rej.counts_text(&cfg_events))?;
             }
-            for a in &report.alerts {
+            for a in alerts {
                 writeln!(
                     out,
-                    "ALERT {} at t = {:.1} s: {}",
-                    a.kind, a.t_raised, a.evidence
+                    "ALERT {} raised at t = {:.1} s: {}",
+                    a.kind.as_str(),
+                    a.t_raised,
+                    a.summary
                 )?;
             }
         }

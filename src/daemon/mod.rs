@@ -1,11 +1,15 @@
-//! shimmyd, the gateway daemon: frames → [`crate::signals::Mapper`] → braking events and
-//! clearance estimate ([`crate::monitor::EventStage`]) → [`crate::alerts`] → [`crate::journal`],
-//! with the log on stderr, persisted [`state`], signals and systemd notification.
+//! shimmyd, the gateway daemon: frames → [`crate::signals::Mapper`] → the monitor pipeline
+//! ([`crate::pipeline`]: braking events and clearance estimate through
+//! [`crate::monitor::EventStage`], then the alert rules of [`crate::alerts`]) →
+//! [`crate::journal`], with the log on stderr, persisted [`state`], signals and systemd
+//! notification. The pipeline's logic is the library's; the daemon wires it to its inputs,
+//! its persisted state and its outputs.
 //!
 //! | module | job |
 //! |---|---|
 //! | [`config`] | the TOML file, validated with key-naming errors |
 //! | [`counters`] | the per-interval counters line (frames, decode errors, invalid messages, events) |
+//! | [`stage`] | the event stage for a configuration (the observer, with the configured table) |
 //! | [`state`] | atomic persistence of estimate, event history, odometer, open alerts |
 //! | [`run`] | the loop: sources, signals (SIGTERM, SIGHUP), sd_notify, outputs |
 //! | [`transmit`] | SHIMMY_01 on the bus, only when the configuration enables it |
@@ -18,7 +22,6 @@
 pub mod config;
 pub mod counters;
 pub mod mqtt;
-pub mod observer_stage;
 pub mod outbox;
 pub mod run;
 pub mod stage;

@@ -2,7 +2,8 @@
 //! [`crate::source::socketcan::LiveSource`], read-only, one reader thread each; or replayed logs
 //! at recorded timing or as fast as possible), feeds every frame to the
 //! [`crate::signals::Mapper`], every accepted update to the [`EventStage`], every finished
-//! event to the [`crate::alerts::AlertBook`], and writes events, alerts and estimates to the
+//! event through the pipeline's shared step ([`crate::pipeline::finish_event`]: odometer,
+//! estimate, the [`crate::alerts::AlertBook`]), and writes events, alerts and estimates to the
 //! [`crate::journal`] and the [`super::state`].
 //!
 //! Signals: SIGTERM / SIGINT stop reading, close a braking event still open, journal it, fsync,
@@ -30,6 +31,7 @@ use crate::alerts::Transition;
 use crate::dbc::Database;
 use crate::journal::Journal;
 use crate::monitor::{EventStage, EventSummary, Sample};
+use crate::pipeline::{finish_event, Finished, SpeedIntegrator};
 use crate::signals::mapping::MappingConfig;
 use crate::signals::{Mapper, Outcome, Reject};
 use crate::source::log::LogReader;
@@ -330,7 +332,7 @@ struct Daemon {
     mapper: Mapper,
     steer_msg: Option<usize>,
     history: SteerHistory,
-    last_speed: Option<(i64, f64)>,
+    speed: SpeedIntegrator,
     events: u64,
     mqtt: Option<super::mqtt::Publisher>,
 }
@@ -375,21 +377,26 @@ impl Daemon {
         Some(s)
     }
 
-    /// Integrates speed into the odometer (trapezoid; gaps over 1 s are not bridged).
+    /// Integrates speed into the odometer ([`SpeedIntegrator`]).
     fn odometer(&mut self, t_ns: i64, v: f64) {
-        if let Some((t0, v0)) = self.last_speed {
-            let dt = (t_ns - t0) as f64 * 1e-9;
-            if dt > 0.0 && dt < 1.0 {
-                self.state.odometer_km += 0.5 * (v + v0) * dt / 1000.0;
-            }
-        }
-        self.last_speed = Some((t_ns, v));
+        self.state.odometer_km += self.speed.advance(t_ns, v) / 1000.0;
     }
 
-    fn on_event(&mut self, mut e: EventSummary) -> anyhow::Result<()> {
-        e.odometer_km = self.state.odometer_km;
+    /// One finished event through the pipeline's shared step ([`finish_event`]: odometer,
+    /// estimate, alert rules), then to the journal, MQTT and the state.
+    fn on_event(&mut self, e: EventSummary) -> anyhow::Result<()> {
+        let Finished {
+            event: e,
+            estimate: est,
+            transitions,
+        } = finish_event(
+            self.stage.as_ref(),
+            &mut self.state.alerts,
+            &self.cfg.alerts,
+            e,
+            self.state.odometer_km,
+        );
         self.events += 1;
-        let est = self.stage.estimate();
         let trace = self.history.trace(&e);
         self.journal.append(&json!({
             "type": "event",
@@ -414,10 +421,6 @@ impl Daemon {
                 .map_or("n/a".to_string(), |a| format!("{a:.3} deg")),
             if e.used { "used" } else { "not used" }
         ));
-        let transitions = self
-            .state
-            .alerts
-            .on_event(&self.cfg.alerts, &e, est.as_ref());
         for t in &transitions {
             let (what, a) = t.parts();
             log(format_args!(
@@ -439,7 +442,7 @@ impl Daemon {
     fn save_state(&mut self) -> anyhow::Result<()> {
         self.state.journal_seq = self.journal.durable_seq();
         self.state.stage = self.stage.save();
-        self.state.last_speed = self.last_speed;
+        self.state.last_speed = self.speed.last;
         state::save(&self.state_dir, &self.state)
     }
 
@@ -719,7 +722,7 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
         history: SteerHistory {
             buf: VecDeque::with_capacity(TRACE_CAP),
         },
-        last_speed,
+        speed: SpeedIntegrator::resume(last_speed),
         events: 0,
         mqtt,
     };

@@ -1,14 +1,14 @@
 //! Chooses the event stage for a configuration: the clearance observer
-//! ([`super::observer_stage::ObserverStage`]), with the response table of `vehicle.table` when
+//! ([`crate::pipeline::ObserverStage`], on the monitor's settings in effect), with the response table of `vehicle.table` when
 //! set. Without a table, events and the shimmy-amplitude alert still work; the clearance is
 //! not estimated (never a fake estimate).
 
 use anyhow::Context;
 
 use super::config::Config;
-use super::observer_stage::ObserverStage;
 use crate::monitor::EventStage;
 use crate::observer::table::ResponseTable;
+use crate::pipeline::ObserverStage;
 
 pub fn for_config(cfg: &Config) -> anyhow::Result<Box<dyn EventStage>> {
     let table = match &cfg.vehicle.table {
@@ -30,5 +30,5 @@ pub fn for_config(cfg: &Config) -> anyhow::Result<Box<dyn EventStage>> {
         }
         None => None,
     };
-    Ok(Box::new(ObserverStage::new(cfg, table)?))
+    Ok(Box::new(ObserverStage::new(&cfg.settings, table)?))
 }

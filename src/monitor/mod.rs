@@ -1,16 +1,18 @@
 //! The monitor pipeline's shared vocabulary: frames → signals → braking events → estimate →
-//! alerts, as both `shimmyd` and the offline replay commands run it. This module holds the seam
+//! alerts, as both `shimmyd` and `shimmy estimate` run it. This module holds the seam
 //! between the mapped signals and the clearance observer: the [`EventStage`] trait, fed one
 //! [`Sample`] per accepted mapped update, handing back finished braking events
 //! ([`EventSummary`]) and the current clearance estimate ([`Estimate`]).
 //!
-//! What it is: the contract the daemon, the alert rules ([`crate::alerts`]) and the report are
-//! written against, plus [`NoObserver`] for configurations without an observer (it detects
-//! nothing and estimates nothing — it never invents an estimate). The daemon's adapter for
-//! [`crate::observer::Observer`] is `shimmy::daemon::observer_stage::ObserverStage`.
+//! What it is: the contract the monitor pipeline (`crate::pipeline`, which shimmyd and
+//! `shimmy estimate` both run), the alert rules ([`crate::alerts`]) and the report are written
+//! against, plus [`NoObserver`] for configurations without an observer (it detects nothing and
+//! estimates nothing — it never invents an estimate). The adapter for
+//! [`crate::observer::Observer`] is `crate::pipeline::ObserverStage`.
 //!
-//! What it is not: a detector, an estimator, an alert rule or an output. It sits below the
-//! alert rules and the daemon and depends on neither.
+//! What it is not: a detector, an estimator, an alert rule, the pipeline's wiring or an
+//! output. It sits below the alert rules, the pipeline and the daemon and depends on none of
+//! them.
 
 use serde::{Deserialize, Serialize};
 
@@ -34,7 +36,8 @@ pub struct EventSummary {
     /// Used for estimation (inside the model's validity range, good data).
     pub used: bool,
     pub unused_reason: Option<String>,
-    /// Odometer at the event (km), from the daemon's speed integration.
+    /// Odometer at the event (km), from the pipeline's speed integration
+    /// (`crate::pipeline::SpeedIntegrator`; shimmyd's persists across restarts).
     #[serde(default)]
     pub odometer_km: f64,
 }

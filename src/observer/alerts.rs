@@ -1,20 +1,19 @@
-//! The alert rules of `shimmy estimate`'s report: pure decisions over the estimator's posterior
-//! and the recent events' amplitude estimates. No I/O, no allocation after construction.
+//! `[alerts]`: the one settings schema of the two maintenance alerts (thresholds, windows and
+//! hysteresis), read by `shimmy estimate --config` and by shimmyd, plus the deprecated key names
+//! still accepted.
 //!
-//! * `clearance`: the posterior gives `P(c > clearance_mm) ≥ clearance_probability`.
-//! * `shimmy_55kmh`: of the last `shimmy_window` used events that began at
-//!   `shimmy_speed_min_kmh`–`shimmy_speed_max_kmh`, at least `shimmy_confirm` show a
-//!   steering-wheel amplitude above `shimmy_deg`. The amplitude is
-//!   the wheel's estimated true amplitude (noise-corrected, see [`super::features`]), not the
-//!   raw peak of the stepped signal.
+//! What it is not: the alert rules. Both commands decide alerts with `crate::alerts::AlertBook`
+//! (raise, update and clear with hysteresis, after each finished braking event), which reads
+//! this type under the name `crate::alerts::AlertsSection`. It lives here, with the observer's
+//! other settings, because config/observer.toml holds all of them in one file.
 
 use serde::{Deserialize, Serialize};
 
 /// Thresholds and hysteresis of the two alerts (`[alerts]` of config/observer.toml, the
-/// monitor's settings file). This one table serves every command: `shimmy estimate` applies the
-/// raise thresholds, shimmyd's alert lifecycle ([`crate::alerts`], whose `AlertsSection` is this
-/// type) also the clear thresholds. The earlier names ([`DEPRECATED_KEYS`]) are still read, with
-/// a deprecation warning.
+/// monitor's settings file). This one table serves every command: `shimmy estimate` and shimmyd
+/// run the same alert lifecycle on it (`crate::alerts::AlertBook`, whose `AlertsSection` is this
+/// type), raise and clear thresholds alike. The earlier names ([`DEPRECATED_KEYS`]) are still
+/// read, with a deprecation warning.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct AlertConfig {
@@ -22,7 +21,7 @@ pub struct AlertConfig {
     pub clearance_mm: f64,
     /// Raise when P(clearance > clearance_mm) is at least this ...
     pub clearance_probability: f64,
-    /// ... clear (shimmyd) when it falls below this (hysteresis).
+    /// ... clear when it falls below this (hysteresis).
     pub clearance_clear_probability: f64,
     /// Steering-wheel shimmy amplitude that raises the shimmy alert (deg), article §4: 0.2°.
     #[serde(alias = "shimmy_amplitude_deg")]
@@ -36,7 +35,7 @@ pub struct AlertConfig {
     /// window are above `shimmy_deg`.
     pub shimmy_window: usize,
     pub shimmy_confirm: usize,
-    /// Clear (shimmyd) only when at most `shimmy_clear_max` of the last `shimmy_window` events
+    /// Clear only when at most `shimmy_clear_max` of the last `shimmy_window` events
     /// are above `shimmy_clear_deg` (hysteresis: lower than `shimmy_deg`).
     pub shimmy_clear_deg: f64,
     pub shimmy_clear_max: usize,
@@ -80,76 +79,4 @@ pub fn deprecations(alerts: &toml::Table) -> Vec<String> {
             )
         })
         .collect()
-}
-
-/// Most events the shimmy rule can look back on.
-pub const MAX_WINDOW: usize = 16;
-
-/// The `shimmy_55kmh` rule's memory: the last few amplitudes at 50–60 km/h.
-#[derive(Clone, Debug, Default)]
-pub struct ShimmyRule {
-    recent: heapless::Deque<(f64, f64), MAX_WINDOW>,
-}
-
-impl ShimmyRule {
-    /// Offers one used event; returns whether it counted (speed in range).
-    pub fn offer(
-        &mut self,
-        cfg: &AlertConfig,
-        t_start_s: f64,
-        v0_kmh: f64,
-        amplitude_deg: f64,
-    ) -> bool {
-        if !(cfg.shimmy_speed_min_kmh..=cfg.shimmy_speed_max_kmh).contains(&v0_kmh) {
-            return false;
-        }
-        let window = cfg.shimmy_window.clamp(1, MAX_WINDOW);
-        while self.recent.len() >= window {
-            self.recent.pop_front();
-        }
-        let _ = self.recent.push_back((t_start_s, amplitude_deg));
-        true
-    }
-
-    /// Events in the window above the threshold.
-    pub fn hits(&self, cfg: &AlertConfig) -> usize {
-        self.recent
-            .iter()
-            .filter(|(_, a)| *a > cfg.shimmy_deg)
-            .count()
-    }
-
-    pub fn active(&self, cfg: &AlertConfig) -> bool {
-        self.hits(cfg) >= cfg.shimmy_confirm.max(1)
-    }
-
-    /// `(t_start_s, amplitude_deg)` of the events in the window, oldest first.
-    pub fn recent(&self) -> impl Iterator<Item = &(f64, f64)> {
-        self.recent.iter()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn needs_two_of_the_last_five_in_the_speed_band() {
-        let cfg = AlertConfig::default();
-        let mut r = ShimmyRule::default();
-        assert!(!r.offer(&cfg, 0.0, 80.0, 1.0), "80 km/h is outside 50-60");
-        r.offer(&cfg, 1.0, 55.0, 0.3);
-        assert!(!r.active(&cfg), "one event is not confirmed");
-        r.offer(&cfg, 2.0, 52.0, 0.1);
-        r.offer(&cfg, 3.0, 58.0, 0.25);
-        assert!(r.active(&cfg));
-        for k in 0..4 {
-            r.offer(&cfg, 4.0 + k as f64, 55.0, 0.1);
-        }
-        assert_eq!(r.hits(&cfg), 1, "the 0.3 fell out of the window of 5");
-        assert!(!r.active(&cfg));
-        r.offer(&cfg, 9.0, 55.0, 0.1);
-        assert_eq!(r.hits(&cfg), 0, "and now the 0.25 too");
-        assert!(!r.active(&cfg));
-    }
 }

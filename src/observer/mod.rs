@@ -1,5 +1,5 @@
 //! The clearance observer: from braking events in the mapped signal stream to a
-//! clearance estimate with a credible interval and two alerts.
+//! clearance estimate with a credible interval.
 //!
 //! | module | job |
 //! |---|---|
@@ -7,10 +7,14 @@
 //! | [`sensor`] | the steering angle sensor model applied to the model's output (MODEL.md §8) |
 //! | [`table`] | the response table: predicted feature distributions over clearance × speed × decel |
 //! | [`estimator`] | the posterior over clearance, accumulated across events with wear diffusion |
-//! | [`alerts`] | the `clearance` and `shimmy_55kmh` rules |
+//! | [`alerts`] | `[alerts]`: the settings of the alert rules (the rules are `crate::alerts`') |
 //!
 //! [`Observer`] wires them to [`crate::events::Detector`]: feed it [`Sample`]s, read a
-//! [`Report`]. What it is not: CAN decoding (that is [`crate::signals`]) or the model.
+//! [`Report`]. What it is not: CAN decoding (that is [`crate::signals`]), the model, or the
+//! alert rules: it raises no alert. The alerts of `shimmy estimate` and shimmyd are decided by
+//! `crate::alerts::AlertBook` after each finished event, on the estimate the monitor pipeline
+//! (`crate::pipeline`) reads from this observer; the report's
+//! [`Report::p_clearance_above_threshold`] is the final posterior's P(c > `clearance_mm`).
 
 pub mod alerts;
 pub mod emulate;
@@ -30,7 +34,7 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use crate::events::{Detector, EventConfig, IgnoredApplication, Sample, Unused};
-use alerts::{AlertConfig, ShimmyRule};
+use alerts::AlertConfig;
 use estimator::{Estimator, EstimatorConfig};
 use features::{Extractor, Features, SensorNoise};
 use rejections::{Rejections, UnusedCounts};
@@ -136,14 +140,6 @@ pub struct EventOut {
     pub invalid_updates: u32,
 }
 
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Alert {
-    pub kind: &'static str,
-    /// Log time at which the alert's condition first held (s).
-    pub t_raised: f64,
-    pub evidence: serde_json::Value,
-}
-
 /// The whole answer of `shimmy estimate`.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Report {
@@ -160,7 +156,6 @@ pub struct Report {
     /// Human-readable verdict.
     pub verdict: String,
     pub events: Vec<EventOut>,
-    pub alerts: Vec<Alert>,
     pub events_used: u32,
     /// Brake applications ignored as too light / too slow to record.
     pub brake_applications_ignored: u64,
@@ -191,14 +186,13 @@ pub const MAX_EVENTS_KEPT: usize = 10_000;
 /// Most ignored brake applications kept in the report (memory bound; all are counted).
 pub const MAX_IGNORED_KEPT: usize = 1_000;
 
-/// Detector + features + estimator + alerts.
+/// Detector + features + estimator.
 pub struct Observer {
     cfg: ObserverConfig,
     detector: Detector,
     extractor: Extractor,
     table: Option<ResponseTable>,
     estimator: Option<Estimator>,
-    shimmy: ShimmyRule,
     events: Vec<EventOut>,
     events_dropped: u64,
     /// The most recent event, kept even when `events` is full (streaming consumers).
@@ -206,8 +200,6 @@ pub struct Observer {
     /// The detector's odometer (m) at the most recent event's brake onset: the position the
     /// estimator's wear model measures the distance between events from.
     last_event_odometer_m: f64,
-    clearance_raised: Option<(f64, f64)>,
-    shimmy_raised: Option<f64>,
     /// Events whose sensor did not match the table's, and the last one's (rate Hz, step deg).
     sensor_mismatch: u64,
     last_mismatch: (f64, f64),
@@ -230,13 +222,10 @@ impl Observer {
             extractor: Extractor::new(),
             table,
             estimator,
-            shimmy: ShimmyRule::default(),
             events: Vec::new(),
             events_dropped: 0,
             last_event: None,
             last_event_odometer_m: 0.0,
-            clearance_raised: None,
-            shimmy_raised: None,
             sensor_mismatch: 0,
             last_mismatch: (0.0, 0.0),
             ignored: Vec::with_capacity(16),
@@ -369,33 +358,21 @@ impl Observer {
             (false, None) => {}
         }
         let amp = feats.as_ref().map(|f| self.amplitude_deg(f));
-        if let (true, Some(f), Some(a)) = (used, feats.as_ref(), amp) {
-            if let (Some(est), Some(t)) = (self.estimator.as_mut(), self.table.as_ref()) {
-                est.update_event(
-                    t,
-                    f.rms_deg,
-                    f.peak_deg,
-                    f.cruise_rms_deg,
-                    rec.v0_kmh,
-                    rec.decel_g,
-                    rec.odometer_m,
-                );
-                let p = est.prob_above(self.cfg.alerts.clearance_mm);
-                if p >= self.cfg.alerts.clearance_probability {
-                    if self.clearance_raised.is_none() {
-                        self.clearance_raised = Some((rec.t_end_s, p));
-                    }
-                } else {
-                    self.clearance_raised = None;
-                }
-            }
-            self.shimmy
-                .offer(&self.cfg.alerts, rec.t_start_s, rec.v0_kmh, a);
-            if self.shimmy.active(&self.cfg.alerts) {
-                self.shimmy_raised.get_or_insert(rec.t_end_s);
-            } else {
-                self.shimmy_raised = None;
-            }
+        if let (true, Some(f), Some(est), Some(t)) = (
+            used,
+            feats.as_ref(),
+            self.estimator.as_mut(),
+            self.table.as_ref(),
+        ) {
+            est.update_event(
+                t,
+                f.rms_deg,
+                f.peak_deg,
+                f.cruise_rms_deg,
+                rec.v0_kmh,
+                rec.decel_g,
+                rec.odometer_m,
+            );
         }
         let out = EventOut {
             t_start: rec.t_start_s,
@@ -452,41 +429,11 @@ impl Observer {
 
     pub fn report(&self) -> Report {
         let a = &self.cfg.alerts;
-        let mut alerts = Vec::new();
         let summary = self
             .estimator
             .as_ref()
             .filter(|e| e.events_used() > 0)
             .map(|e| (e.summary(), e.prob_above(a.clearance_mm)));
-        if let (Some((t, _)), Some((_, p))) = (self.clearance_raised, summary) {
-            alerts.push(Alert {
-                kind: "clearance",
-                t_raised: t,
-                evidence: serde_json::json!({
-                    "p_above": p,
-                    "threshold_mm": a.clearance_mm,
-                    "probability_required": a.clearance_probability,
-                    "events_used": summary.map(|s| s.0.events_used),
-                }),
-            });
-        }
-        if let Some(t) = self.shimmy_raised {
-            let recent: Vec<_> = self
-                .shimmy
-                .recent()
-                .map(|(t, amp)| serde_json::json!({"t_start": t, "sw_amplitude_deg": amp}))
-                .collect();
-            alerts.push(Alert {
-                kind: "shimmy_55kmh",
-                t_raised: t,
-                evidence: serde_json::json!({
-                    "threshold_deg": a.shimmy_deg,
-                    "hits": self.shimmy.hits(a),
-                    "confirm": a.shimmy_confirm,
-                    "recent_events": recent,
-                }),
-            });
-        }
         let rej = self.rejections();
         let why = || self.explain_rejections(true);
         let (clearance_mm, interval_mm, detectable, below_mm, verdict) = match summary {
@@ -561,7 +508,6 @@ impl Observer {
             below_mm,
             verdict,
             events: self.events.clone(),
-            alerts,
             events_used: self.events.iter().filter(|e| e.used).count() as u32,
             brake_applications_ignored: self.detector.ignored,
             rejections: rej,

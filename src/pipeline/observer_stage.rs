@@ -1,33 +1,32 @@
-//! The adapter between shimmyd's [`EventStage`] seam and the clearance observer
-//! ([`crate::observer::Observer`]): converts the daemon's samples, hands each newly
-//! finished braking event to the daemon, and reports the estimator's posterior.
+//! The adapter between the pipeline's [`EventStage`] seam and the clearance observer
+//! ([`crate::observer::Observer`]): feeds it the pipeline's samples, hands back each newly
+//! finished braking event as an [`EventSummary`], and reports the clearance posterior as an
+//! [`Estimate`]. shimmyd and `shimmy estimate` both run the observer through it
+//! ([`super::Monitor`], [`super::finish_event`]), so the alert rules see the same events and
+//! estimates in both.
 //!
-//! Persistence across restarts ([`super::state`]): the clearance posterior the daemon reports
+//! Persistence across restarts (shimmyd's state file): the clearance posterior the stage reports
 //! is held by this adapter's own [`Estimator`] (the observer's public estimator type, same
 //! table and `[estimator]` settings), fed with each used event's features exactly as the
-//! observer feeds its own, with the daemon's persisted odometer at the event's brake onset as
-//! the distance for the wear model. [`EventStage::save`] returns the estimator's evidence, one
-//! [`Evidence`] per used
-//! event, and [`EventStage::restore`] replays it into a fresh estimator, so an estimate keeps
-//! accumulating across daemon runs: two runs over logs A then B end with the same posterior as
-//! one run over A+B. (The observer's estimator exposes no way to set its posterior directly;
-//! replaying the evidence is exact.) At most [`MAX_EVIDENCE`] events are kept; past that the
-//! oldest are left out of the saved state, counted in [`Saved::evidence_dropped`] and named
-//! in the log line at the next start (their weight is already small after the wear model's
-//! diffusion over the distance since).
+//! observer feeds its own, with the caller's odometer at the event's brake onset as the distance
+//! for the wear model. [`EventStage::save`] returns the estimator's evidence, one [`Evidence`]
+//! per used event, and [`EventStage::restore`] replays it into a fresh estimator, so an estimate
+//! keeps accumulating across daemon runs: two runs over logs A then B end with the same
+//! posterior as one run over A+B. (The observer's estimator exposes no way to set its posterior
+//! directly; replaying the evidence is exact.) At most [`MAX_EVIDENCE`] events are kept; past
+//! that the oldest are left out of the saved state, counted in [`Saved::evidence_dropped`] and
+//! named in the log line at the next start (their weight is already small after the wear
+//! model's diffusion over the distance since).
 //!
 //! What it is not: a detector, an estimator or an alert rule. Detection and the amplitude
-//! estimate (MODEL.md §11) are the observer's; the alerts the daemon raises are
-//! [`crate::alerts`]' (the observer's own alert state is not used here).
+//! estimate (MODEL.md §11) are the observer's; the alert rules are [`crate::alerts`]'.
 
 use std::collections::VecDeque;
 
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
-use super::config::Config;
 use crate::monitor::{Estimate, EventStage, EventSummary, RejectionSummary, Sample};
-use crate::observer::alerts::MAX_WINDOW;
 use crate::observer::estimator::Estimator;
 use crate::observer::table::ResponseTable;
 use crate::observer::{EventOut, Observer, ObserverConfig};
@@ -76,16 +75,14 @@ pub struct ObserverStage {
 }
 
 impl ObserverStage {
-    /// Runs the observer on the monitor's settings in effect (`cfg.settings`); `table` is the
-    /// loaded `vehicle.table` (without it events and amplitudes still flow, no clearance
-    /// estimate).
-    pub fn new(cfg: &Config, table: Option<ResponseTable>) -> anyhow::Result<ObserverStage> {
-        let mut oc = cfg.settings.clone();
-        let a = &cfg.alerts;
-        // The observer's own rule looks back at most MAX_WINDOW events; the daemon's alert
-        // state (crate::alerts) applies the configured window in full.
-        oc.alerts.shimmy_window = a.shimmy_window.min(MAX_WINDOW);
-        oc.alerts.shimmy_confirm = a.shimmy_confirm.min(oc.alerts.shimmy_window);
+    /// Runs the observer on the monitor's settings (`settings`, config/observer.toml's schema;
+    /// the estimate's `p_above` is for `settings.alerts.clearance_mm`); `table` is the response
+    /// table (without it events and amplitudes still flow, no clearance estimate).
+    pub fn new(
+        settings: &ObserverConfig,
+        table: Option<ResponseTable>,
+    ) -> anyhow::Result<ObserverStage> {
+        let oc = settings.clone();
         let has_table = table.is_some();
         let est = match &table {
             Some(t) => Some((
@@ -98,13 +95,18 @@ impl ObserverStage {
             obs: Observer::new(oc.clone(), table)?,
             seen: 0,
             has_table,
-            clearance_mm: a.clearance_mm,
+            clearance_mm: oc.alerts.clearance_mm,
             est,
             evidence: VecDeque::new(),
             evidence_dropped: 0,
             odometer_km: 0.0,
             cfg: oc,
         })
+    }
+
+    /// The observer behind the stage (its report: events, rejections, its own estimate).
+    pub fn observer(&self) -> &Observer {
+        &self.obs
     }
 
     fn take_new(&mut self) -> Option<EventSummary> {
@@ -166,7 +168,7 @@ fn summary(e: &EventOut) -> EventSummary {
             .unused_reason
             .and_then(|r| serde_json::to_value(r).ok())
             .and_then(|v| v.as_str().map(str::to_owned)),
-        // Filled in by the daemon from its own speed integration.
+        // Filled in by the pipeline from its odometer (`super::finish_event`).
         odometer_km: 0.0,
     }
 }
@@ -296,9 +298,7 @@ mod tests {
 
     #[test]
     fn events_past_the_observers_report_cap_still_reach_the_daemon() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-        let cfg = Config::load(&root.join("config/shimmyd.toml")).unwrap();
-        let mut stage = ObserverStage::new(&cfg, None).unwrap();
+        let mut stage = ObserverStage::new(&ObserverConfig::default(), None).unwrap();
         let cycles = crate::observer::MAX_EVENTS_KEPT + 5;
         assert_eq!(feed(&mut stage, cycles), cycles);
         assert_eq!(stage.obs.events().len(), crate::observer::MAX_EVENTS_KEPT);
