@@ -20,7 +20,7 @@ use crate::events::Sample;
 use crate::model::VehicleParams;
 use crate::observer::table::{vehicle_hash, ResponseTable};
 use crate::observer::{ObserverConfig, Report};
-use crate::pipeline::{Monitor, ObserverStage};
+use crate::pipeline::{detector_sample, Monitor, ObserverStage};
 use crate::profile::Profile;
 use crate::signals::mapping::MappingConfig;
 use crate::signals::{Mapper, Outcome, Update};
@@ -227,36 +227,11 @@ impl Feeder {
         self.stats.frames += 1;
         let u = self.mapper.on_frame(f)?;
         self.stats.mapped_frames += 1;
-        let snap = self.mapper.snapshot(f.t_ns);
-        let brake = match (snap.brake_pressed.valid(), snap.brake_pressure_pa.valid()) {
-            (Some(b), Some(p)) => Some(b || p > self.brake_on_pa),
-            (Some(b), None) => Some(b),
-            (None, Some(p)) => Some(p > self.brake_on_pa),
-            (None, None) => None,
-        };
-        let mut s = Sample {
-            t_ns: f.t_ns,
-            brake,
-            ..Default::default()
-        };
-        match u.outcome {
-            Outcome::Accepted(ch) => {
-                if ch.steer_angle {
-                    s.steer_rad = snap.steer_angle_rad.valid();
-                    s.steer_invalid = s.steer_rad.is_none();
-                }
-                if ch.speed {
-                    s.speed_mps = snap.speed_mps.valid();
-                }
-                if ch.accel {
-                    s.accel_mps2 = snap.accel_mps2.valid();
-                }
-            }
-            Outcome::Rejected(_) => {
-                self.stats.rejected_frames += 1;
-                s.steer_invalid = Some(u.message) == self.steer_msg;
-            }
+        if matches!(u.outcome, Outcome::Rejected(_)) {
+            self.stats.rejected_frames += 1;
         }
+        let snap = self.mapper.snapshot(f.t_ns);
+        let s = detector_sample(&u, &snap, self.steer_msg, self.brake_on_pa);
         Some((s, u))
     }
 

@@ -31,9 +31,9 @@ use crate::alerts::Transition;
 use crate::dbc::Database;
 use crate::journal::Journal;
 use crate::monitor::{EventStage, EventSummary, Sample};
-use crate::pipeline::{finish_event, Finished, SpeedIntegrator};
+use crate::pipeline::{detector_sample, finish_event, Finished, SpeedIntegrator};
 use crate::signals::mapping::MappingConfig;
-use crate::signals::{Mapper, Outcome, Reject};
+use crate::signals::Mapper;
 use crate::source::log::LogReader;
 use crate::source::{CanSource, SourceStats};
 use crate::wire::Frame;
@@ -57,8 +57,6 @@ pub type StageFactory = dyn Fn(&Config) -> anyhow::Result<Box<dyn EventStage>>;
 /// Recorded-timing replay: once a frame is due, every frame due within this much after it is
 /// handed over at once (at most this early), so the loop sleeps about once per slice.
 const PACE_SLICE: Duration = Duration::from_millis(10);
-/// Brake pressure above which the brake counts as applied when only pressure is mapped (Pa).
-const BRAKE_ON_PA: f64 = 3.0e5;
 /// Steering history kept for event traces (s) and its fixed capacity (samples).
 const TRACE_HISTORY_S: f64 = 30.0;
 const TRACE_CAP: usize = 8192;
@@ -341,38 +339,17 @@ impl Daemon {
     fn sample(&mut self, f: &Frame) -> Option<Sample> {
         let u = self.mapper.on_frame(f)?;
         let snap = self.mapper.snapshot(f.t_ns);
-        let brake = snap
-            .brake_pressed
-            .valid()
-            .or_else(|| snap.brake_pressure_pa.valid().map(|p| p > BRAKE_ON_PA));
-        let mut s = Sample {
-            t_ns: f.t_ns,
-            brake,
-            ..Sample::default()
-        };
-        match u.outcome {
-            Outcome::Accepted(c) => {
-                if c.steer_angle {
-                    s.steer_rad = snap.steer_angle_rad.valid();
-                    if let Some(a) = s.steer_rad {
-                        self.history.push(f.t_ns, a);
-                    }
-                }
-                if c.speed {
-                    s.speed_mps = snap.speed_mps.valid();
-                    if let Some(v) = s.speed_mps {
-                        self.odometer(f.t_ns, v);
-                    }
-                }
-                if c.accel {
-                    s.accel_mps2 = snap.accel_mps2.valid();
-                }
-            }
-            Outcome::Rejected(
-                Reject::Checksum(_) | Reject::CounterRepeat { .. } | Reject::Short { .. },
-            ) => {
-                s.steer_invalid = Some(u.message) == self.steer_msg;
-            }
+        let s = detector_sample(
+            &u,
+            &snap,
+            self.steer_msg,
+            self.cfg.settings.events.brake_on_bar * 1e5,
+        );
+        if let Some(a) = s.steer_rad {
+            self.history.push(f.t_ns, a);
+        }
+        if let Some(v) = s.speed_mps {
+            self.odometer(f.t_ns, v);
         }
         Some(s)
     }

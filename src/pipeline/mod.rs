@@ -9,6 +9,7 @@
 //! | [`SpeedIntegrator`] | the odometer: speed integrated over time, the distance the estimator's wear model uses between events |
 //! | [`finish_event`] | the step after each finished event: the event stamped with the odometer, the estimate after it, the alert rules run on both |
 //! | [`Monitor`] | the three above wired together for an offline run (`shimmy estimate`), ending with the alerts standing |
+//! | [`detector_sample`] | one mapped frame's signals as the detector's [`Sample`]: the brake rule, and which rejections mark the steering invalid |
 //!
 //! shimmyd uses [`SpeedIntegrator`] and [`finish_event`] directly, because it keeps the odometer
 //! and the alert book in its persisted state; `shimmy estimate` uses [`Monitor`], which holds
@@ -23,6 +24,51 @@ pub mod observer_stage;
 
 use crate::alerts::{Alert, AlertBook, AlertsSection, Transition};
 use crate::monitor::{Estimate, EventStage, EventSummary, Sample};
+use crate::signals::{Outcome, Update, VehicleSignals};
+
+/// One mapped frame as the detector's [`Sample`], the same for shimmyd and `shimmy estimate`:
+/// `u` is what the mapper did with the frame, `snap` its signals just after it.
+///
+/// * The brake counts as applied when the pedal switch says so or the pressure exceeds
+///   `brake_on_pa` (`[events] brake_on_bar`); either alone when only one is mapped.
+/// * The steering angle, speed and acceleration are carried when this frame updated them.
+/// * A steering frame that was rejected (checksum, repeated counter, short payload), or
+///   accepted with no valid angle, marks the steering invalid (the detector counts it against
+///   the event's data quality).
+pub fn detector_sample(
+    u: &Update,
+    snap: &VehicleSignals,
+    steer_msg: Option<usize>,
+    brake_on_pa: f64,
+) -> Sample {
+    let brake = match (snap.brake_pressed.valid(), snap.brake_pressure_pa.valid()) {
+        (Some(b), Some(p)) => Some(b || p > brake_on_pa),
+        (Some(b), None) => Some(b),
+        (None, Some(p)) => Some(p > brake_on_pa),
+        (None, None) => None,
+    };
+    let mut s = Sample {
+        t_ns: snap.t_ns,
+        brake,
+        ..Sample::default()
+    };
+    match u.outcome {
+        Outcome::Accepted(ch) => {
+            if ch.steer_angle {
+                s.steer_rad = snap.steer_angle_rad.valid();
+                s.steer_invalid = s.steer_rad.is_none();
+            }
+            if ch.speed {
+                s.speed_mps = snap.speed_mps.valid();
+            }
+            if ch.accel {
+                s.accel_mps2 = snap.accel_mps2.valid();
+            }
+        }
+        Outcome::Rejected(_) => s.steer_invalid = Some(u.message) == steer_msg,
+    }
+    s
+}
 
 pub use observer_stage::ObserverStage;
 
@@ -165,6 +211,87 @@ impl<S: EventStage> Monitor<S> {
 mod tests {
     use super::*;
     use crate::alerts::Kind;
+    use crate::signals::{Changed, Reading, Reject, Validity};
+
+    fn reading<T: Copy>(v: Option<T>) -> Reading<T> {
+        Reading {
+            value: v,
+            t_ns: v.map(|_| 0),
+            validity: if v.is_some() {
+                Validity::Valid
+            } else {
+                Validity::NotMapped
+            },
+        }
+    }
+
+    fn snap(pressed: Option<bool>, pressure_bar: Option<f64>) -> VehicleSignals {
+        VehicleSignals {
+            t_ns: 5,
+            steer_angle_rad: reading(Some(0.01)),
+            speed_mps: reading(Some(20.0)),
+            brake_pressure_pa: reading(pressure_bar.map(|b| b * 1e5)),
+            brake_pressed: reading(pressed),
+            accel_mps2: reading(Some(-3.0)),
+            yaw_rate_radps: reading(None),
+            lat_accel_mps2: reading(None),
+        }
+    }
+
+    #[test]
+    fn the_brake_is_the_switch_or_the_pressure_above_the_configured_limit() {
+        let u = Update {
+            message: 1,
+            outcome: Outcome::Accepted(Changed::default()),
+        };
+        let brake = |pressed, bar| detector_sample(&u, &snap(pressed, bar), Some(0), 3e5).brake;
+        assert_eq!(brake(Some(false), Some(5.0)), Some(true), "pressure alone");
+        assert_eq!(brake(Some(true), Some(1.0)), Some(true), "switch alone");
+        assert_eq!(brake(Some(false), Some(1.0)), Some(false));
+        assert_eq!(brake(None, Some(3.5)), Some(true));
+        assert_eq!(brake(Some(true), None), Some(true));
+        assert_eq!(brake(None, None), None);
+        // The limit is the caller's ([events] brake_on_bar), not a constant.
+        assert_eq!(
+            detector_sample(&u, &snap(None, Some(3.5)), Some(0), 4e5).brake,
+            Some(false)
+        );
+    }
+
+    #[test]
+    fn only_what_the_frame_updated_is_carried_and_a_rejected_steering_frame_is_invalid() {
+        let ch = Changed {
+            speed: true,
+            ..Changed::default()
+        };
+        let s = detector_sample(
+            &Update {
+                message: 1,
+                outcome: Outcome::Accepted(ch),
+            },
+            &snap(Some(false), None),
+            Some(0),
+            3e5,
+        );
+        assert_eq!((s.t_ns, s.speed_mps), (5, Some(20.0)));
+        assert_eq!(
+            (s.steer_rad, s.accel_mps2, s.steer_invalid),
+            (None, None, false)
+        );
+        let rejected = |message| {
+            detector_sample(
+                &Update {
+                    message,
+                    outcome: Outcome::Rejected(Reject::CounterRepeat { counter: 3 }),
+                },
+                &snap(None, None),
+                Some(0),
+                3e5,
+            )
+        };
+        assert!(rejected(0).steer_invalid, "the steering message");
+        assert!(!rejected(1).steer_invalid, "another message");
+    }
 
     /// A stage that finishes one used event per sample with `brake: Some(true)` and then
     /// reports the next scripted P(c > threshold).
