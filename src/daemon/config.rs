@@ -271,27 +271,6 @@ impl Default for MqttSection {
     }
 }
 
-fn positive(key: &str, v: f64) -> anyhow::Result<()> {
-    if !(v.is_finite() && v > 0.0) {
-        bail!("{key}: must be > 0 (got {v})");
-    }
-    Ok(())
-}
-
-fn ordered(lo_key: &str, lo: f64, hi_key: &str, hi: f64) -> anyhow::Result<()> {
-    if !(lo < hi) {
-        bail!("{lo_key} ({lo}) must be below {hi_key} ({hi})");
-    }
-    Ok(())
-}
-
-fn probability(key: &str, p: f64) -> anyhow::Result<()> {
-    if !(p > 0.0 && p < 1.0) {
-        bail!("{key}: must be a probability strictly between 0 and 1 (got {p})");
-    }
-    Ok(())
-}
-
 impl Config {
     /// Parses `text`; relative paths are resolved against `base` (the file's directory).
     pub fn from_toml_str(text: &str, base: &Path) -> anyhow::Result<Config> {
@@ -543,104 +522,16 @@ impl Config {
         self.validate_mqtt()
     }
 
-    /// The checks of the monitor's settings in effect (keys named as in the daemon's file when
-    /// they come from there, as in the monitor file otherwise).
+    /// The checks of the monitor's settings in effect ([`ObserverConfig::validate`]; keys named
+    /// as in the daemon's file when they come from there, as in the monitor file otherwise).
     fn validate_settings(&self) -> anyhow::Result<()> {
-        let e = &self.events;
-        positive("events.min_speed_kmh", e.min_speed_kmh)?;
-        positive("events.min_decel_g", e.min_decel_g)?;
-        positive("events.max_steer_deg", e.max_steer_deg)?;
-        ordered(
-            "events.min_speed_kmh",
-            e.min_speed_kmh,
-            "events.max_speed_kmh",
-            e.max_speed_kmh,
-        )?;
-        ordered(
-            "events.min_decel_g",
-            e.min_decel_g,
-            "events.max_decel_g",
-            e.max_decel_g,
-        )?;
-        let a = &self.alerts;
-        positive("alerts.shimmy_deg", a.shimmy_deg)?;
-        positive("alerts.shimmy_clear_deg", a.shimmy_clear_deg)?;
-        if a.shimmy_clear_deg > a.shimmy_deg {
-            bail!(
-                "alerts.shimmy_clear_deg ({}) must not exceed alerts.shimmy_deg ({}): the alert would flap",
-                a.shimmy_clear_deg,
-                a.shimmy_deg
-            );
-        }
-        positive("alerts.shimmy_speed_min_kmh", a.shimmy_speed_min_kmh)?;
-        ordered(
-            "alerts.shimmy_speed_min_kmh",
-            a.shimmy_speed_min_kmh,
-            "alerts.shimmy_speed_max_kmh",
-            a.shimmy_speed_max_kmh,
-        )?;
-        if a.shimmy_window == 0 || a.shimmy_window > 64 {
-            bail!(
-                "alerts.shimmy_window: must be 1..=64 (got {})",
-                a.shimmy_window
-            );
-        }
-        if a.shimmy_confirm == 0 || a.shimmy_confirm > a.shimmy_window {
-            bail!(
-                "alerts.shimmy_confirm: must be 1..=alerts.shimmy_window ({}) (got {})",
-                a.shimmy_window,
-                a.shimmy_confirm
-            );
-        }
-        if a.shimmy_clear_max >= a.shimmy_confirm {
-            bail!(
-                "alerts.shimmy_clear_max ({}) must be below alerts.shimmy_confirm ({}): the alert would flap",
-                a.shimmy_clear_max,
-                a.shimmy_confirm
-            );
-        }
-        positive("alerts.clearance_mm", a.clearance_mm)?;
-        probability("alerts.clearance_probability", a.clearance_probability)?;
-        probability(
-            "alerts.clearance_clear_probability",
-            a.clearance_clear_probability,
-        )?;
-        if a.clearance_clear_probability >= a.clearance_probability {
-            bail!(
-                "alerts.clearance_clear_probability ({}) must be below alerts.clearance_probability ({})",
-                a.clearance_clear_probability,
-                a.clearance_probability
-            );
-        }
-        self.validate_observer()
-    }
-
-    fn validate_observer(&self) -> anyhow::Result<()> {
         // `[observer.features]` in the daemon's file, `[features]` in the monitor file.
         let pre = if self.monitor.is_some() {
             ""
         } else {
             "observer."
         };
-        let f = &self.observer.features;
-        positive(&format!("{pre}features.crest_factor"), f.crest_factor)?;
-        if !(f.sensor.quant_step_deg.is_finite() && f.sensor.quant_step_deg >= 0.0) {
-            bail!(
-                "{pre}features.sensor.quant_step_deg: must be >= 0 (0 = measured per event) (got {})",
-                f.sensor.quant_step_deg
-            );
-        }
-        if !(f.sensor.noise_deg.is_finite() && f.sensor.noise_deg >= 0.0) {
-            bail!(
-                "{pre}features.sensor.noise_deg: must be >= 0 (got {})",
-                f.sensor.noise_deg
-            );
-        }
-        self.observer
-            .estimator
-            .validate()
-            .map_err(|e| anyhow::anyhow!("{pre}{e}"))?;
-        Ok(())
+        self.settings.validate(pre)
     }
 
     /// Ranges are checked whether or not MQTT is enabled (a typo should not wait until the day

@@ -8,6 +8,7 @@
 //! | [`table`] | the response table: predicted feature distributions over clearance × speed × decel |
 //! | [`estimator`] | the posterior over clearance, accumulated across events with wear diffusion |
 //! | [`alerts`] | `[alerts]`: the settings of the alert rules (the rules are `crate::alerts`') |
+//! | `checks` | [`ObserverConfig::validate`]: the ranges and orderings serde cannot express, for every command |
 //!
 //! [`Observer`] wires them to [`crate::events::Detector`]: feed it [`Sample`]s, read a
 //! [`Report`]. What it is not: CAN decoding (that is [`crate::signals`]), the model, or the
@@ -17,6 +18,7 @@
 //! [`Report::p_clearance_above_threshold`] is the final posterior's P(c > `clearance_mm`).
 
 pub mod alerts;
+mod checks;
 pub mod emulate;
 pub mod estimator;
 pub mod features;
@@ -104,6 +106,8 @@ impl ObserverConfig {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read {}", path.display()))?;
         let (cfg, warnings) = Self::from_toml_str_with_warnings(&text)
+            .with_context(|| format!("in {}", path.display()))?;
+        cfg.validate("")
             .with_context(|| format!("in {}", path.display()))?;
         let warnings = warnings
             .into_iter()
