@@ -118,17 +118,7 @@ fn an_alert_inside_the_hysteresis_band_stays_standing_as_in_shimmyd() {
         "{}",
         j.describe()
     );
-    let mut standing: Vec<(String, String)> = Vec::new();
-    for (t, k) in &j.alerts {
-        standing.retain(|(kk, _)| kk != k);
-        standing.push((k.clone(), t.clone()));
-    }
-    let mut daemon: Vec<String> = standing
-        .into_iter()
-        .filter(|(_, t)| t != "cleared")
-        .map(|(k, _)| k)
-        .collect();
-    daemon.sort();
+    let daemon = j.kinds_standing();
     let mut ours: Vec<String> = alerts
         .iter()
         .map(|a| a["kind"].as_str().unwrap().to_string())

@@ -78,22 +78,6 @@ const EVENT_REL: f64 = 1e-9;
 /// across restarts), `estimate` on the detector's, which agree to rounding.
 const ESTIMATE_REL: f64 = 1e-9;
 
-/// The alert kinds standing at the end of the journal (raised or updated, not cleared since).
-fn standing(j: &Journal) -> Vec<String> {
-    let mut last: Vec<(String, String)> = Vec::new();
-    for (t, k) in &j.alerts {
-        last.retain(|(kk, _)| kk != k);
-        last.push((k.clone(), t.clone()));
-    }
-    let mut k: Vec<String> = last
-        .into_iter()
-        .filter(|(_, t)| t != "cleared")
-        .map(|(k, _)| k)
-        .collect();
-    k.sort();
-    k
-}
-
 fn compare(log: &Path, dir: &Path) {
     let e = estimate(log);
     let j = replay(log, dir);
@@ -147,7 +131,7 @@ fn compare(log: &Path, dir: &Path) {
         .map(|a| a["kind"].as_str().unwrap().to_string())
         .collect();
     kinds.sort();
-    assert_eq!(kinds, standing(&j), "{what}: alerts at the end");
+    assert_eq!(kinds, j.kinds_standing(), "{what}: alerts at the end");
 }
 
 #[test]

@@ -231,6 +231,22 @@ impl Journal {
         k
     }
 
+    /// The alert kinds standing at the end (raised or updated, not cleared since), sorted.
+    pub fn kinds_standing(&self) -> Vec<String> {
+        let mut last: Vec<(String, String)> = Vec::new();
+        for (t, k) in &self.alerts {
+            last.retain(|(kk, _)| kk != k);
+            last.push((k.clone(), t.clone()));
+        }
+        let mut k: Vec<String> = last
+            .into_iter()
+            .filter(|(_, t)| t != "cleared")
+            .map(|(k, _)| k)
+            .collect();
+        k.sort();
+        k
+    }
+
     /// One line for test output: events, estimate, alerts.
     pub fn describe(&self) -> String {
         let n = |v: &Value| v.as_f64().map_or("-".to_string(), |x| format!("{x:.3}"));
