@@ -25,7 +25,7 @@ use anyhow::{anyhow, bail, Context};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
-use shimmy::dbc::{Database, RawValue, Signal, ValueKind};
+use shimmy::dbc::{Database, RawValue, ValueKind};
 use shimmy::profile::bus::{parse_hex, BusSpec, Form, SteerSensor};
 use shimmy::signals::checksum::ChecksumKind;
 use shimmy::wire::Frame;
@@ -235,21 +235,6 @@ fn ns(s: f64) -> i64 {
     (s * 1e9).round() as i64
 }
 
-/// The physical range a signal's bits can hold.
-fn bits_range(s: &Signal) -> (f64, f64) {
-    let (rmin, rmax) = match s.kind {
-        ValueKind::Unsigned => (0.0, 2f64.powi(i32::from(s.size)) - 1.0),
-        ValueKind::Signed => (
-            -(2f64.powi(i32::from(s.size) - 1)),
-            2f64.powi(i32::from(s.size) - 1) - 1.0,
-        ),
-        ValueKind::Float32 | ValueKind::Float64 => return (f64::NEG_INFINITY, f64::INFINITY),
-    };
-    let a = rmin * s.factor + s.offset;
-    let b = rmax * s.factor + s.offset;
-    (a.min(b), a.max(b))
-}
-
 impl Bus {
     /// The reference bus ([`REFERENCE_BUS`]) packed with the DBC in `dbc_text` (normally
     /// [`REFERENCE_DBC`]; a variant must define the same messages and signals).
@@ -316,7 +301,7 @@ impl Bus {
             for f in &spec_m.fields {
                 let si = sig(&f.signal)?;
                 let s = &m.signals[si];
-                let (blo, bhi) = bits_range(s);
+                let (blo, bhi) = s.phys_range();
                 // What the bits hold, or the range the bus states. Not the DBC's `[min|max]`:
                 // opendbc's are often wrong (the RAV4's ACCEL_X says [0|65535] while the real
                 // car sends -3.9..2.3 m/s²).

@@ -26,7 +26,7 @@ use firmware_sim::bus::{profile_bus, Sample};
 use firmware_sim::plant::ModelPlant;
 use firmware_sim::truth::GroundTruth;
 use firmware_sim::{FirmwareSim, RunInfo, Scenario};
-use shimmy::dbc::{Database, Signal, ValueKind};
+use shimmy::dbc::{Database, Signal};
 use shimmy::observer::ObserverConfig;
 use shimmy::profile::bus::{BusSpec, Quantity};
 use shimmy::profile::Profile;
@@ -168,18 +168,6 @@ fn drive(p: Profile) -> Drive {
     }
 }
 
-/// The physical range a signal's bits hold.
-fn bits_range(s: &Signal) -> (f64, f64) {
-    let n = i32::from(s.size);
-    let (a, b) = match s.kind {
-        ValueKind::Unsigned => (0.0, 2f64.powi(n) - 1.0),
-        ValueKind::Signed => (-(2f64.powi(n - 1)), 2f64.powi(n - 1) - 1.0),
-        _ => return (f64::NEG_INFINITY, f64::INFINITY),
-    };
-    let (a, b) = (a * s.factor + s.offset, b * s.factor + s.offset);
-    (a.min(b), a.max(b))
-}
-
 fn signal<'a>(db: &'a Database, msg: &str, sig: &str) -> &'a Signal {
     let m = &db.messages()[db.message_by_name(msg).unwrap()];
     &m.signals[m.signal_by_name(sig).unwrap()]
@@ -214,7 +202,7 @@ fn end_to_end(name: &str) -> Option<Drive> {
     let accel_sig = map
         .accel
         .as_ref()
-        .map(|a| (bits_range(signal(&d.db, &a.message, &a.signal)), a.invert));
+        .map(|a| (signal(&d.db, &a.message, &a.signal).phys_range(), a.invert));
     let step = p.sensor.step_deg;
     let sas_offset = d.truth.sensors.sas_offset_deg;
     let (mut n_steer, mut n_speed, mut n_accel, mut n_brake) = (0, 0, 0, 0);
@@ -358,7 +346,7 @@ fn end_to_end(name: &str) -> Option<Drive> {
                 if f.quantity != Quantity::LongAccelMps2 {
                     return false;
                 }
-                let (lo, hi) = bits_range(signal(&d.db, &m.name, &f.signal));
+                let (lo, hi) = signal(&d.db, &m.name, &f.signal).phys_range();
                 let reach = max_accel * f.scale.abs();
                 lo > -reach || hi < reach
             })

@@ -237,6 +237,23 @@ impl Signal {
         raw.as_f64() * self.factor + self.offset
     }
 
+    /// The lowest and highest physical value the signal's bits can carry (`factor` × raw +
+    /// `offset` over the raw range of `size` bits; a negative factor swaps the ends). Floats:
+    /// unbounded.
+    pub fn phys_range(&self) -> (f64, f64) {
+        let n = i32::from(self.size);
+        let (raw_lo, raw_hi) = match self.kind {
+            ValueKind::Unsigned => (0.0, 2f64.powi(n) - 1.0),
+            ValueKind::Signed => (-(2f64.powi(n - 1)), 2f64.powi(n - 1) - 1.0),
+            ValueKind::Float32 | ValueKind::Float64 => return (f64::NEG_INFINITY, f64::INFINITY),
+        };
+        let (a, b) = (
+            raw_lo * self.factor + self.offset,
+            raw_hi * self.factor + self.offset,
+        );
+        (a.min(b), a.max(b))
+    }
+
     /// Physical value; `None` when the signal does not fit the payload.
     #[inline]
     pub fn phys(&self, data: &[u8]) -> Option<f64> {

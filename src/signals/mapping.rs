@@ -285,6 +285,9 @@ impl PressureUnit {
     }
 }
 
+/// Standard gravity (m/s²): the unit "g".
+pub const STANDARD_GRAVITY_MPS2: f64 = 9.806_65;
+
 /// Acceleration units.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum AccelUnit {
@@ -299,7 +302,7 @@ impl AccelUnit {
     pub fn to_si(self, v: f64) -> f64 {
         match self {
             AccelUnit::Mps2 => v,
-            AccelUnit::G => v * 9.806_65,
+            AccelUnit::G => v * STANDARD_GRAVITY_MPS2,
         }
     }
 }

@@ -31,11 +31,13 @@ pub mod mapping;
 use anyhow::bail;
 use serde::Serialize;
 
-use crate::dbc::{Database, Message, Signal, ValueKind};
+use crate::dbc::{Database, Message, Signal};
 use crate::wire::{Frame, FrameKind};
 
 use checksum::{ChecksumError, ChecksumKind};
-use mapping::{AccelUnit, AngleUnit, MappingConfig, PressureUnit, RateUnit, SpeedUnit};
+use mapping::{
+    AccelUnit, AngleUnit, MappingConfig, PressureUnit, RateUnit, SpeedUnit, STANDARD_GRAVITY_MPS2,
+};
 
 /// Whether a quantity can be used now.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -274,41 +276,32 @@ struct AccelQ {
     scale: f64,
 }
 
-/// Standard gravity (m/s²), for the g figures of messages.
-const STANDARD_GRAVITY: f64 = 9.806_65;
-
 /// The hardest braking a mapped acceleration must read without clipping (m/s²): 0.8 g, the top
 /// of the deceleration range the model covers (MODEL.md §6). A narrower signal (Honda's 9-bit
 /// `KINEMATICS.LONG_ACCEL` holds ±5.1 m/s²) would flatten every harder plateau to its limit.
-const BRAKING_DECEL_MPS2: f64 = 0.8 * STANDARD_GRAVITY;
+const BRAKING_DECEL_MPS2: f64 = 0.8 * STANDARD_GRAVITY_MPS2;
 
 impl AccelQ {
-    /// The largest and smallest acceleration (m/s², forward positive) the signal's bits can
-    /// carry after scaling, unit conversion and inversion; infinite for floats.
+    /// A physical value of the signal as the monitor's acceleration (m/s², forward positive).
+    fn si(&self, phys: f64) -> f64 {
+        let v = self.unit.to_si(self.scale * phys);
+        if self.invert {
+            -v
+        } else {
+            v
+        }
+    }
+
+    /// The lowest and highest acceleration (m/s², forward positive) the signal's bits can
+    /// carry ([`Signal::phys_range`] through [`Self::si`]); unbounded for floats.
     fn range_mps2(&self) -> (f64, f64) {
-        let s = &self.sig.signal;
-        let (raw_lo, raw_hi) = match s.kind {
-            ValueKind::Unsigned => (0.0, 2f64.powi(s.size as i32) - 1.0),
-            ValueKind::Signed => (
-                -(2f64.powi(s.size as i32 - 1)),
-                2f64.powi(s.size as i32 - 1) - 1.0,
-            ),
-            ValueKind::Float32 | ValueKind::Float64 => return (f64::INFINITY, f64::NEG_INFINITY),
-        };
-        let ends = [raw_lo, raw_hi].map(|raw| {
-            let v = self.unit.to_si(self.scale * (raw * s.factor + s.offset));
-            if self.invert {
-                -v
-            } else {
-                v
-            }
-        });
-        (ends[0].max(ends[1]), ends[0].min(ends[1]))
+        let (lo, hi) = self.sig.signal.phys_range();
+        let (a, b) = (self.si(lo), self.si(hi));
+        (a.min(b), a.max(b))
     }
 
     fn value(&self, data: &[u8]) -> Option<f64> {
-        let v = self.unit.to_si(self.scale * self.sig.phys(data)?);
-        Some(if self.invert { -v } else { v })
+        Some(self.si(self.sig.phys(data)?))
     }
 }
 
@@ -599,7 +592,7 @@ impl Mapper {
         let mut accel = accel_q("accel", &cfg.accel)?;
         let lat = accel_q("lat_accel", &cfg.lat_accel)?;
         if let (Some(q), Some(a)) = (&accel, &cfg.accel) {
-            let (_, min_mps2) = q.range_mps2();
+            let (min_mps2, _) = q.range_mps2();
             if -min_mps2 < BRAKING_DECEL_MPS2 {
                 r.warnings.push(format!(
                     "accel: {}.{} reads at most {:.2} m/s² ({:.2} g) of deceleration, less than the \
@@ -609,8 +602,8 @@ impl Mapper {
                     a.message,
                     a.signal,
                     -min_mps2,
-                    -min_mps2 / STANDARD_GRAVITY,
-                    BRAKING_DECEL_MPS2 / STANDARD_GRAVITY,
+                    -min_mps2 / STANDARD_GRAVITY_MPS2,
+                    BRAKING_DECEL_MPS2 / STANDARD_GRAVITY_MPS2,
                 ));
                 accel = None;
             }
