@@ -10,10 +10,9 @@
 
 mod e2e_common;
 
-use std::path::Path;
 use std::process::Command;
 
-use e2e_common::{shimmyd, workspace, Journal};
+use e2e_common::{estimate_reference, replay_reference, workspace};
 use serde_json::Value;
 
 const SETTINGS: &str = "[alerts]\n\
@@ -29,57 +28,13 @@ fn demo() -> std::path::PathBuf {
     workspace().join("tests/fixtures/demo/worn_0p2mm.log")
 }
 
-fn estimate(settings: &Path) -> Value {
-    let out = Command::new(env!("CARGO_BIN_EXE_shimmy"))
-        .current_dir(workspace())
-        .args(["estimate", "--profile", "shimmy_reference", "--config"])
-        .arg(settings)
-        .arg(demo())
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "shimmy estimate: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
-}
-
-fn replay(settings: &Path, dir: &Path) -> Journal {
-    let cfg = dir.join("shimmyd.toml");
-    std::fs::write(
-        &cfg,
-        format!(
-            "monitor = {:?}\n[input]\nprofile = \"shimmy_reference\"\n\
-             [outputs]\njournal_dir = \"journal\"\nstate_dir = \"state\"\n",
-            settings.display().to_string()
-        ),
-    )
-    .unwrap();
-    let out = Command::new(shimmyd())
-        .current_dir(workspace())
-        .arg("--config")
-        .arg(&cfg)
-        .arg("--replay")
-        .arg(demo())
-        .arg("--fast")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "shimmyd --replay: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    Journal::read(&dir.join("journal"))
-}
-
 #[test]
 fn an_alert_inside_the_hysteresis_band_stays_standing_as_in_shimmyd() {
     let dir = tempfile::tempdir().unwrap();
     let settings = dir.path().join("observer.toml");
     std::fs::write(&settings, SETTINGS).unwrap();
 
-    let e = estimate(&settings);
+    let e = estimate_reference(&demo(), Some(&settings));
     let amps: Vec<f64> = e["events"]
         .as_array()
         .unwrap()
@@ -105,7 +60,7 @@ fn an_alert_inside_the_hysteresis_band_stays_standing_as_in_shimmyd() {
     assert_eq!(a["evidence"]["hits"], serde_json::json!([0, 1]), "{a:#}");
 
     // shimmyd, on the same settings and log: the same transitions, the same alerts standing.
-    let j = replay(&settings, dir.path());
+    let j = replay_reference(&demo(), dir.path(), Some(&settings));
     let shimmy_transitions: Vec<&str> = j
         .alerts
         .iter()

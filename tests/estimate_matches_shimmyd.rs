@@ -6,60 +6,11 @@
 
 mod e2e_common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
-use e2e_common::{firmware_sim, shimmyd, workspace, Journal};
+use e2e_common::{estimate_reference, firmware_sim, replay_reference, workspace};
 use serde_json::Value;
-
-fn shimmy() -> PathBuf {
-    PathBuf::from(env!("CARGO_BIN_EXE_shimmy"))
-}
-
-/// `shimmy estimate --profile shimmy_reference LOG`, its JSON.
-fn estimate(log: &Path) -> Value {
-    let out = Command::new(shimmy())
-        .current_dir(workspace())
-        .args(["estimate", "--profile", "shimmy_reference"])
-        .arg(log)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "shimmy estimate {}: {}",
-        log.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
-}
-
-/// `shimmyd --replay LOG --fast` with the reference profile and nothing else configured.
-fn replay(log: &Path, dir: &Path) -> Journal {
-    std::fs::create_dir_all(dir).unwrap();
-    let cfg = dir.join("shimmyd.toml");
-    std::fs::write(
-        &cfg,
-        "[input]\nprofile = \"shimmy_reference\"\n\
-         [outputs]\njournal_dir = \"journal\"\nstate_dir = \"state\"\n",
-    )
-    .unwrap();
-    let out = Command::new(shimmyd())
-        .current_dir(workspace())
-        .arg("--config")
-        .arg(&cfg)
-        .arg("--replay")
-        .arg(log)
-        .arg("--fast")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "shimmyd --replay {}: {}",
-        log.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    Journal::read(&dir.join("journal"))
-}
 
 /// Equal numbers to `rel` of the larger (or equal JSON where not numbers).
 fn same_number(a: &Value, b: &Value, what: &str, rel: f64) {
@@ -79,8 +30,8 @@ const EVENT_REL: f64 = 1e-9;
 const ESTIMATE_REL: f64 = 1e-9;
 
 fn compare(log: &Path, dir: &Path) {
-    let e = estimate(log);
-    let j = replay(log, dir);
+    let e = estimate_reference(log, None);
+    let j = replay_reference(log, dir, None);
     let what = log.display();
     let ev = e["events"].as_array().unwrap();
     assert_eq!(ev.len(), j.events.len(), "{what}: events");

@@ -9,24 +9,7 @@ mod e2e_common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use e2e_common::{firmware_sim, workspace};
-use serde_json::Value;
-
-fn estimate(log: &Path, config: Option<&Path>) -> Value {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_shimmy"));
-    cmd.current_dir(workspace())
-        .args(["estimate", "--profile", "shimmy_reference"]);
-    if let Some(c) = config {
-        cmd.arg("--config").arg(c);
-    }
-    let out = cmd.arg(log).output().unwrap();
-    assert!(
-        out.status.success(),
-        "shimmy estimate: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
-}
+use e2e_common::{estimate_reference, firmware_sim, workspace};
 
 /// One firmware-sim vehicle (seed 77100, 12 events) on the reference bus; `plant` replaces the
 /// model's vehicle file.
@@ -59,7 +42,7 @@ fn vehicle_log(dir: &Path, plant: Option<&Path>) -> PathBuf {
 #[test]
 fn a_vehicle_on_rougher_roads_than_the_table_knows_is_told_the_model_does_not_fit() {
     let dir = tempfile::tempdir().unwrap();
-    let fits = estimate(&vehicle_log(&dir.path().join("model"), None), None);
+    let fits = estimate_reference(&vehicle_log(&dir.path().join("model"), None), None);
     let fit = &fits["model_fit"];
     assert!(
         fit["dof"].as_f64().unwrap() >= 12.0,
@@ -77,7 +60,7 @@ fn a_vehicle_on_rougher_roads_than_the_table_knows_is_told_the_model_does_not_fi
     );
     let plant = dir.path().join("rough.toml");
     std::fs::write(&plant, rough).unwrap();
-    let misfit = estimate(&vehicle_log(&dir.path().join("rough"), Some(&plant)), None);
+    let misfit = estimate_reference(&vehicle_log(&dir.path().join("rough"), Some(&plant)), None);
     let f = &misfit["model_fit"];
     assert_eq!(f["fits"], false, "{f}");
     let z = f["z"].as_f64().unwrap();
@@ -96,7 +79,7 @@ fn a_vehicle_on_rougher_roads_than_the_table_knows_is_told_the_model_does_not_fi
     // The limit is the observer's `[estimator] fit_z_max`: above the score, no verdict.
     let cfg = dir.path().join("observer.toml");
     std::fs::write(&cfg, format!("[estimator]\nfit_z_max = {:.1}\n", z + 1.0)).unwrap();
-    let lenient = estimate(&dir.path().join("rough/fleet_77100.log"), Some(&cfg));
+    let lenient = estimate_reference(&dir.path().join("rough/fleet_77100.log"), Some(&cfg));
     assert_eq!(lenient["model_fit"]["fits"], true);
     assert!(!lenient["verdict"]
         .as_str()

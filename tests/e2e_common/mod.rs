@@ -158,6 +158,59 @@ pub fn write_config(dir: &Path, input: &str) -> PathBuf {
     p
 }
 
+/// `shimmy estimate --profile shimmy_reference [--config SETTINGS] LOG`, its JSON; panics
+/// unless it exits 0.
+pub fn estimate_reference(log: &Path, settings: Option<&Path>) -> Value {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_shimmy"));
+    cmd.current_dir(workspace())
+        .args(["estimate", "--profile", "shimmy_reference"]);
+    if let Some(s) = settings {
+        cmd.arg("--config").arg(s);
+    }
+    let out = cmd.arg(log).output().unwrap();
+    assert!(
+        out.status.success(),
+        "shimmy estimate {}: {}",
+        log.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// `shimmyd --replay LOG --fast` with the reference profile and nothing else configured but
+/// the monitor's settings file `settings` when given; its journal (under `dir`).
+pub fn replay_reference(log: &Path, dir: &Path, settings: Option<&Path>) -> Journal {
+    std::fs::create_dir_all(dir).unwrap();
+    let cfg = dir.join("shimmyd.toml");
+    let monitor = settings.map_or(String::new(), |s| {
+        format!("monitor = {:?}\n", s.display().to_string())
+    });
+    std::fs::write(
+        &cfg,
+        format!(
+            "{monitor}[input]\nprofile = \"shimmy_reference\"\n\
+             [outputs]\njournal_dir = \"journal\"\nstate_dir = \"state\"\n"
+        ),
+    )
+    .unwrap();
+    let out = Command::new(shimmyd())
+        .current_dir(workspace())
+        .arg("--config")
+        .arg(&cfg)
+        .arg("--replay")
+        .arg(log)
+        .arg("--fast")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "shimmyd --replay {}: {}",
+        log.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    Journal::read(&dir.join("journal"))
+}
+
 /// `shimmyd --config CFG --replay LOG --fast --state-dir DIR`; panics unless it exits 0.
 pub fn replay(cfg: &Path, log: &Path, state: &Path) -> Output {
     let out = Command::new(shimmyd())
