@@ -284,3 +284,42 @@ fn blf_reader_survives_every_truncation_and_bit_flip_of_a_real_file() {
         drain_checked(b, LogFormat::Blf);
     }
 }
+
+/// Found by the `asc` fuzz target (tests/fuzz): a `CANFD` line whose data length is not a
+/// CAN FD length (here 60) was delivered as a frame of 60 bytes with the DLC of 64. It is
+/// malformed: counted and reported, not delivered.
+#[test]
+fn asc_canfd_line_with_a_length_no_fd_frame_has_is_malformed() {
+    let mut text =
+        String::from("date Sat Sep 30 15:06:13.191 2017\nbase hex  timestamps absolute\n");
+    text.push_str("Begin Triggerblock Sat Sep 30 15:06:13.191 2017\n");
+    for len in [60usize, 64, 9, 12] {
+        let bytes: Vec<String> = (0..len).map(|i| format!("{:02X}", i as u8)).collect();
+        text.push_str(&format!(
+            "   0.100000 CANFD   1 Rx        300                                   0 0 f {len} {}\n",
+            bytes.join(" ")
+        ));
+    }
+    text.push_str("End TriggerBlock\n");
+    let mut r = LogReader::with_format(
+        Box::new(std::io::Cursor::new(text.clone().into_bytes())),
+        "fd.asc",
+        LogFormat::Asc,
+    );
+    let mut lens = Vec::new();
+    while let Some(f) = r.next_frame().unwrap() {
+        assert!(f.fd);
+        assert_eq!(fd_dlc_to_len(f.dlc), f.len as usize, "{f:?}");
+        lens.push(f.len);
+    }
+    assert_eq!(lens, [64, 12], "only the lengths an FD frame can have");
+    assert_eq!(r.stats().malformed, 2);
+    let skips = r.take_skips();
+    assert!(
+        skips
+            .iter()
+            .any(|s| s.reason.contains("bad data length \"60\"")),
+        "{skips:?}"
+    );
+    drain_checked(text.into_bytes(), LogFormat::Asc);
+}

@@ -265,6 +265,12 @@ fn id_token(chunk: &str, keyword: &str) -> Option<(usize, usize)> {
         while i < b.len() && !b[i].is_ascii_whitespace() && b[i] != b'"' && b[i] != b';' {
             i += 1;
         }
+        if i == start {
+            // A ';' where a token would start: step over it (a BA_ scan would otherwise spin
+            // on it forever; found by the dbc fuzz target).
+            i += 1;
+            continue;
+        }
         let tok = &chunk[start..i];
         if tok == "BO_" || tok == "SG_" {
             seen_object = true;

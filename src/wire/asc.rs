@@ -341,8 +341,10 @@ impl AscParser {
             .filter(|&v| v <= 15)
             .ok_or_else(|| AscError::Dlc(lossy(d)))?;
         let l = tk.next().ok_or(AscError::Truncated("the data length"))?;
+        // A CAN FD frame carries 0–8, 12, 16, 20, 24, 32, 48 or 64 bytes; any other length
+        // cannot have been on the bus.
         let len = parse_uint(l, 10)
-            .filter(|&v| v <= 64)
+            .filter(|&v| v <= 64 && fd_dlc_to_len(fd_len_to_dlc(v as usize)) == v as usize)
             .ok_or_else(|| AscError::DataLength(lossy(l)))? as usize;
         if len == 0 && dlc > 0 {
             f.kind = FrameKind::Remote;
