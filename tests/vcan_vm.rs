@@ -1,6 +1,6 @@
-//! Runs the vcan suite (`tests/vcan/suite.txt`: `live_vcan`, firmware-sim's `e2e_vcan`, and
-//! `shimmyd_e2e_vcan`, the daemon's live path) against a real kernel CAN bus, wherever this
-//! machine can provide one:
+//! Runs the vcan suite (`tests/vcan/suite.txt`: `live_vcan`, firmware-sim's `e2e_vcan`,
+//! `shimmyd_e2e_vcan`, the daemon's live path, and `shimmyd_load_vcan`, that path at 8,000
+//! frames/s) against a real kernel CAN bus, wherever this machine can provide one:
 //!
 //! 1. the host has a CAN interface (`SHIMMY_VCAN_IF`, default `vcan0`), or can create `vcan0`
 //!    (root and a kernel with the vcan module): `tests/vcan/vm.sh --host` builds the suite
@@ -150,6 +150,12 @@ fn vcan_suite_on_a_real_can_bus() {
     assert!(
         counts.iter().any(|c| c.contains("test=shimmyd_live")),
         "the suite printed no counts of the daemon's live run"
+    );
+    assert!(
+        counts
+            .iter()
+            .any(|c| c.contains("test=shimmyd_load_compressed")),
+        "the suite printed no counts of the daemon under a full bus"
     );
     // Every message of every test arrives complete, except in the test that overflows a
     // receive queue on purpose (its drops are counted, which it checks itself).

@@ -7,7 +7,12 @@
 //!   frames of mapped messages too short for their signals;
 //! * `invalid_messages`: frames of mapped messages rejected by checksum or rolling counter, plus
 //!   message timeouts;
-//! * `events`: braking events finished.
+//! * `events`: braking events finished;
+//! * `journal_errors`: journal writes, fsyncs or rotations the disk refused (a full or
+//!   read-only disk; retries included); `journal_dropped`: records the journal dropped because
+//!   its in-memory backlog was full during such an outage (they are a gap in its sequence
+//!   numbers); `journal_backlog`: records waiting in memory for the disk now (a level, not a
+//!   count: the interval line shows the current value). See [`crate::journal::Health`].
 //!
 //! Beside them, whenever braking events are rejected or none has been found and the counts
 //! changed since the last line, a `braking:` line gives the detector's rejections per reason
@@ -16,6 +21,7 @@
 
 use serde::Serialize;
 
+use crate::journal::Health;
 use crate::signals::MessageStats;
 use crate::source::SourceStats;
 
@@ -27,6 +33,9 @@ pub struct Counters {
     pub events: u64,
     /// Frames the kernel or the logger reported dropped.
     pub dropped: u64,
+    pub journal_errors: u64,
+    pub journal_dropped: u64,
+    pub journal_backlog: u64,
 }
 
 impl Counters {
@@ -43,7 +52,16 @@ impl Counters {
             invalid_messages: invalid,
             events,
             dropped: sources.dropped,
+            ..Counters::default()
         }
+    }
+
+    /// With the journal's counts ([`crate::journal::Journal::health`]).
+    pub fn with_journal(mut self, h: &Health) -> Counters {
+        self.journal_errors = h.write_errors;
+        self.journal_dropped = h.dropped_records;
+        self.journal_backlog = h.backlog_records;
+        self
     }
 
     pub fn minus(&self, before: &Counters) -> Counters {
@@ -53,6 +71,9 @@ impl Counters {
             invalid_messages: self.invalid_messages - before.invalid_messages,
             events: self.events - before.events,
             dropped: self.dropped - before.dropped,
+            journal_errors: self.journal_errors - before.journal_errors,
+            journal_dropped: self.journal_dropped - before.journal_dropped,
+            journal_backlog: self.journal_backlog,
         }
     }
 }
@@ -63,7 +84,16 @@ impl std::fmt::Display for Counters {
             f,
             "frames={} decode_errors={} invalid_messages={} events={} dropped={}",
             self.frames, self.decode_errors, self.invalid_messages, self.events, self.dropped
-        )
+        )?;
+        // Only when something happened: a healthy journal keeps the line as it was.
+        if self.journal_errors + self.journal_dropped + self.journal_backlog > 0 {
+            write!(
+                f,
+                " journal_errors={} journal_dropped={} journal_backlog={}",
+                self.journal_errors, self.journal_dropped, self.journal_backlog
+            )?;
+        }
+        Ok(())
     }
 }
 

@@ -39,6 +39,9 @@ pub struct State {
     /// Last speed sample (log time ns, m/s), so the odometer integration continues across a
     /// restart when the input continues within a second (a log split in two).
     pub last_speed: Option<(i64, f64)>,
+    /// The journal's health when the state was saved ([`crate::journal::Health`]): whether it
+    /// writes, its backlog and drops during a disk outage.
+    pub journal: Option<crate::journal::Health>,
 }
 
 impl State {

@@ -7,7 +7,7 @@
 //! again). Every line is a complete JSON object (`jq` reads the files as they are):
 //!
 //! ```text
-//! {"seq":41,"rec":{...},"crc":"8c1f05e2"}
+//! {"seq":41,"wall_ns":1764800000123456789,"rec":{...},"crc":"8c1f05e2"}
 //! ```
 //!
 //! `crc` is CRC-32C of every byte of the line before `,"crc":`, so a line torn by a power cut
@@ -20,6 +20,19 @@
 //! [`Journal::sync`]. An acknowledged record survives a crash or power cut at any instant
 //! (assuming the storage honours fsync).
 //!
+//! Every line is stamped with the wall-clock time it was written (`wall_ns`, from a
+//! [`clock::WallClock`]); order is the sequence number's alone, so a clock that jumps by years
+//! (a gateway without RTC set by NTP) neither reorders nor drops records.
+//!
+//! Disk faults: by default an I/O error is returned to the caller. Opened with a
+//! [`Tolerance`] ([`Journal::open_with`]), the journal survives a full (`ENOSPC`) or read-only
+//! (`EROFS`) disk instead: a torn partial line is cut off, records not yet fsynced and every
+//! record appended during the outage are kept, in order, in a bounded in-memory backlog
+//! (beyond it the oldest are dropped and counted: the reader sees the gap in the sequence
+//! numbers, [`Reader::missing`]), writing is retried on the monotonic clock and the backlog
+//! written when the disk takes it again. [`Journal::health`] says which state it is in.
+//! Records acknowledged before the outage are never touched.
+//!
 //! Recovery: [`Journal::open`] scans `current.jsonl`; a torn or corrupt tail (anything after
 //! the last valid line) is cut off and reported in [`Recovery`]; sequence numbers continue
 //! after the last valid record. [`Reader`] iterates the valid records of all segments in
@@ -28,12 +41,18 @@
 //! What it is not: a database (no index, no deletion of old segments — retention is the
 //! operator's, e.g. logrotate-style pruning of `seg-*.jsonl`).
 
+pub mod clock;
+pub mod fault;
 pub mod line;
 
+use std::collections::VecDeque;
 use std::fs::{self, File, OpenOptions};
 use std::io::{self, BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
+
+use clock::{SystemClock, WallClock};
+use fault::{IoFaults, Op};
 
 use anyhow::{bail, Context};
 use serde::{Deserialize, Serialize};
@@ -81,16 +100,100 @@ pub struct Recovery {
     pub last_seq: Option<u64>,
 }
 
+/// How a journal opened with [`Journal::open_with`] rides out a disk that refuses writes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Tolerance {
+    /// Most bytes of records kept in memory while the disk refuses them; beyond, the oldest
+    /// are dropped (and counted).
+    pub backlog_bytes: usize,
+    /// How often writing is tried again during an outage (monotonic clock). An explicit
+    /// [`Journal::sync`] always tries.
+    pub retry_every: Duration,
+}
+
+impl Default for Tolerance {
+    fn default() -> Self {
+        Tolerance {
+            backlog_bytes: 4 * 1024 * 1024,
+            retry_every: Duration::from_secs(5),
+        }
+    }
+}
+
+/// Options of [`Journal::open_with`] beyond [`JournalConfig`].
+#[derive(Default)]
+pub struct Setup {
+    /// `None`: every I/O error is returned (the journal of [`Journal::open`]).
+    pub tolerance: Option<Tolerance>,
+    /// Injected I/O faults (tests, [`fault::DiskFaults`]).
+    pub faults: Option<Box<dyn IoFaults>>,
+    /// The clock of the `wall_ns` stamps; `None`: the system's.
+    pub clock: Option<Box<dyn WallClock>>,
+}
+
+/// The journal's state for its owner's log, status and counters.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Health {
+    /// False while the disk refuses writes (records then wait in the backlog).
+    pub writable: bool,
+    /// The error that started the current outage, e.g. "write: No space left on device
+    /// (os error 28)".
+    pub error: Option<String>,
+    /// Seconds the current outage has lasted (monotonic clock).
+    pub outage_s: Option<u64>,
+    /// Outages since the journal was opened (each ends when the backlog is written).
+    pub outages: u64,
+    /// Failed I/O operations since the journal was opened (retries included).
+    pub write_errors: u64,
+    /// Records waiting in memory, and their size in bytes.
+    pub backlog_records: u64,
+    pub backlog_bytes: u64,
+    /// Records dropped because the backlog was full (their sequence numbers are a gap on disk).
+    pub dropped_records: u64,
+    /// Sequence numbers of the first and last dropped record.
+    pub dropped_seqs: Option<(u64, u64)>,
+    /// Records that waited in the backlog and reached the disk later.
+    pub delayed_records: u64,
+}
+
+/// One encoded line, with its sequence number.
+struct Pending {
+    seq: u64,
+    line: Vec<u8>,
+}
+
+/// The outage machinery of a tolerant journal.
+struct Outages {
+    tol: Tolerance,
+    /// Lines written since the last successful fsync (written again after a failed one).
+    unsynced: VecDeque<Pending>,
+    /// Lines the disk has not taken (in sequence order).
+    backlog: VecDeque<Pending>,
+    backlog_bytes: usize,
+    /// (when it started, why) while the disk refuses writes.
+    down: Option<(Instant, String)>,
+    last_try: Instant,
+    health: Health,
+}
+
 /// The append side.
 pub struct Journal {
     dir: PathBuf,
     cfg: JournalConfig,
-    file: File,
+    /// `None` after a failed create (tolerant journals only): reopened on the next retry.
+    file: Option<File>,
+    /// Bytes of `current.jsonl` written through this journal's view.
     size: u64,
+    /// Length of `current.jsonl` covered by the last fsync.
+    durable_size: u64,
     next_seq: u64,
     durable_seq: Option<u64>,
     last_sync: Instant,
     buf: Vec<u8>,
+    clock: Box<dyn WallClock>,
+    faults: Option<Box<dyn IoFaults>>,
+    outages: Option<Outages>,
 }
 
 fn fsync_dir(dir: &Path) -> io::Result<()> {
@@ -121,13 +224,31 @@ pub fn segments(dir: &Path) -> io::Result<Vec<PathBuf>> {
     Ok(segs)
 }
 
-/// Scans one file: (valid records, last valid seq, end offset of the last valid line, invalid
-/// lines before it).
-fn scan(path: &Path) -> io::Result<(u64, Option<u64>, u64, u64)> {
+/// What [`scan`] found in one file.
+struct Scan {
+    records: u64,
+    /// Highest valid sequence number.
+    max_seq: Option<u64>,
+    /// Sequence number of the last valid line.
+    last_seq: Option<u64>,
+    /// End offset of the last valid line.
+    end: u64,
+    /// Invalid lines before it.
+    corrupt: u64,
+}
+
+/// Scans one file.
+fn scan(path: &Path) -> io::Result<Scan> {
     let mut r = BufReader::new(File::open(path)?);
     let mut buf = Vec::new();
-    let (mut n, mut last, mut end, mut bad_since_good, mut bad_total, mut off) =
-        (0u64, None, 0u64, 0u64, 0u64, 0u64);
+    let mut s = Scan {
+        records: 0,
+        max_seq: None,
+        last_seq: None,
+        end: 0,
+        corrupt: 0,
+    };
+    let (mut bad_since_good, mut off) = (0u64, 0u64);
     loop {
         buf.clear();
         let k = r.read_until(b'\n', &mut buf)? as u64;
@@ -137,42 +258,99 @@ fn scan(path: &Path) -> io::Result<(u64, Option<u64>, u64, u64)> {
         off += k;
         match line::decode(&buf) {
             Ok((seq, _)) => {
-                n += 1;
-                last = Some(seq);
-                end = off;
-                bad_total += bad_since_good;
+                s.records += 1;
+                s.last_seq = Some(seq);
+                s.max_seq = s.max_seq.max(Some(seq));
+                s.end = off;
+                s.corrupt += bad_since_good;
                 bad_since_good = 0;
             }
             Err(_) => bad_since_good += 1,
         }
     }
-    Ok((n, last, end, bad_total))
+    Ok(s)
 }
 
 impl Journal {
     /// Opens (creating if needed) the journal in `dir`, recovering from a crash: a torn or
     /// corrupt tail of `current.jsonl` is truncated (reported in the returned [`Recovery`]).
+    /// I/O errors, then and later, are returned.
     pub fn open(dir: &Path, cfg: JournalConfig) -> anyhow::Result<(Journal, Recovery)> {
+        Journal::open_with(dir, cfg, Setup::default())
+    }
+
+    /// [`Journal::open`] with the options of [`Setup`]. With a [`Tolerance`], a disk that
+    /// refuses to create `current.jsonl` or to cut its torn tail does not stop the opening:
+    /// the journal starts in an outage (see [`Journal::health`]); reading it must still work.
+    pub fn open_with(
+        dir: &Path,
+        cfg: JournalConfig,
+        setup: Setup,
+    ) -> anyhow::Result<(Journal, Recovery)> {
         if cfg.rotate_bytes == 0 {
             bail!("journal rotate_bytes must be > 0");
         }
-        fs::create_dir_all(dir)
-            .with_context(|| format!("cannot create journal directory {}", dir.display()))?;
+        let Setup {
+            tolerance,
+            faults,
+            clock,
+        } = setup;
+        let now = Instant::now();
+        let mut j = Journal {
+            dir: dir.to_path_buf(),
+            cfg,
+            file: None,
+            size: 0,
+            durable_size: 0,
+            next_seq: 1,
+            durable_seq: None,
+            last_sync: now,
+            buf: Vec::with_capacity(4096),
+            clock: clock.unwrap_or_else(|| Box::new(SystemClock)),
+            faults,
+            outages: tolerance.map(|tol| Outages {
+                tol,
+                unsynced: VecDeque::new(),
+                backlog: VecDeque::new(),
+                backlog_bytes: 0,
+                down: None,
+                last_try: now,
+                health: Health {
+                    writable: true,
+                    ..Health::default()
+                },
+            }),
+        };
+        if let Err(e) = fs::create_dir_all(dir) {
+            let e = anyhow::Error::new(e)
+                .context(format!("cannot create journal directory {}", dir.display()));
+            if j.outages.is_none() {
+                return Err(e);
+            }
+            j.fail(&e);
+            return Ok((j, Recovery::default()));
+        }
         let cur = dir.join(CURRENT);
         let mut rec = Recovery::default();
+        // The highest sequence number on disk: the journal continues after it.
+        let mut max_seq = None;
         if cur.exists() {
-            let (n, last, end, bad) =
-                scan(&cur).with_context(|| format!("cannot read {}", cur.display()))?;
+            let sc = scan(&cur).with_context(|| format!("cannot read {}", cur.display()))?;
             let len = fs::metadata(&cur)?.len();
-            rec.records = n;
-            rec.last_seq = last;
-            rec.corrupt_lines = bad;
-            if len > end {
-                rec.truncated_bytes = len - end;
-                let f = OpenOptions::new().write(true).open(&cur)?;
-                f.set_len(end)
-                    .with_context(|| format!("cannot truncate torn tail of {}", cur.display()))?;
-                f.sync_all()?;
+            rec.records = sc.records;
+            rec.last_seq = sc.last_seq;
+            rec.corrupt_lines = sc.corrupt;
+            max_seq = sc.max_seq;
+            j.size = len;
+            // What recovery keeps is what a retry after a failed cut may cut back to.
+            j.durable_size = sc.end;
+            if len > sc.end {
+                rec.truncated_bytes = len - sc.end;
+                match j.cut_tail(sc.end) {
+                    Ok(()) => {}
+                    Err(e) if j.outages.is_some() => j.fail(&e),
+                    Err(e) => return Err(e),
+                }
             }
         }
         // No valid record in current: the last seq is in the newest rotated segment (a crash
@@ -183,60 +361,191 @@ impl Journal {
                 if s.ends_with(CURRENT) {
                     continue;
                 }
-                let (_, last, _, _) = scan(s)?;
-                if last.is_some() {
-                    rec.last_seq = last;
+                let sc = scan(s)?;
+                if sc.last_seq.is_some() {
+                    rec.last_seq = sc.last_seq;
+                    max_seq = sc.max_seq;
                     break;
                 }
             }
         }
+        j.next_seq = match max_seq {
+            None => 1,
+            Some(s) => s.checked_add(1).with_context(|| {
+                format!("journal {} has used every sequence number", dir.display())
+            })?,
+        };
+        j.durable_seq = max_seq;
+        if j.outages.as_ref().is_none_or(|o| o.down.is_none()) {
+            match j.reopen() {
+                Ok(()) => {}
+                Err(e) if j.outages.is_some() => j.fail(&e),
+                Err(e) => return Err(e),
+            }
+        }
+        Ok((j, rec))
+    }
+
+    /// Asks the fault layer about `op`: `Err` when it must fail before doing anything.
+    fn check(&mut self, op: Op) -> io::Result<()> {
+        match self.faults.as_mut().and_then(|f| f.inject(op)) {
+            Some((_, e)) => Err(e),
+            None => Ok(()),
+        }
+    }
+
+    /// Opens `current.jsonl` for appending (after a failed create or a rotation).
+    fn reopen(&mut self) -> anyhow::Result<()> {
+        let cur = self.dir.join(CURRENT);
+        self.check(Op::Create)
+            .with_context(|| format!("cannot open {}", cur.display()))?;
         let file = OpenOptions::new()
             .create(true)
             .append(true)
             .open(&cur)
             .with_context(|| format!("cannot open {}", cur.display()))?;
-        let size = file.metadata()?.len();
-        fsync_dir(dir)?;
-        let next_seq = rec.last_seq.map_or(1, |s| s + 1);
-        Ok((
-            Journal {
-                dir: dir.to_path_buf(),
-                cfg,
-                file,
-                size,
-                next_seq,
-                durable_seq: rec.last_seq,
-                last_sync: Instant::now(),
-                buf: Vec::with_capacity(4096),
+        let len = file.metadata()?.len();
+        fsync_dir(&self.dir)
+            .with_context(|| format!("cannot fsync directory {}", self.dir.display()))?;
+        self.file = Some(file);
+        // Its durable length stays what the caller knows (recovery's or the last fsync's):
+        // anything beyond it is a torn or unacknowledged tail, cut before the next write.
+        self.size = len;
+        Ok(())
+    }
+
+    /// Cuts `current.jsonl` back to `len` bytes (a torn tail) and makes that durable.
+    fn cut_tail(&mut self, len: u64) -> anyhow::Result<()> {
+        let cur = self.dir.join(CURRENT);
+        let freed = self.size.saturating_sub(len);
+        self.check(Op::Truncate { freed })
+            .with_context(|| format!("cannot truncate torn tail of {}", cur.display()))?;
+        let f = match &self.file {
+            Some(f) => f.try_clone()?,
+            None => OpenOptions::new().write(true).open(&cur)?,
+        };
+        f.set_len(len)
+            .with_context(|| format!("cannot truncate torn tail of {}", cur.display()))?;
+        f.sync_all()
+            .with_context(|| format!("cannot fsync {}", cur.display()))?;
+        self.size = len;
+        Ok(())
+    }
+
+    /// Writes one whole line (a partial write on a full disk leaves a torn tail, which the
+    /// caller cuts off).
+    fn write_line(&mut self, line: &[u8]) -> anyhow::Result<()> {
+        let injected = self
+            .faults
+            .as_mut()
+            .and_then(|f| f.inject(Op::Write { len: line.len() }));
+        let Some(file) = self.file.as_mut() else {
+            bail!("cannot write to the journal: {CURRENT} is not open");
+        };
+        match injected {
+            Some((done, e)) => {
+                let done = done.min(line.len());
+                file.write_all(&line[..done])
+                    .context("cannot write to the journal")?;
+                self.size += done as u64;
+                Err(anyhow::Error::new(e).context("cannot write to the journal"))
+            }
+            None => match file.write_all(line) {
+                Ok(()) => {
+                    self.size += line.len() as u64;
+                    Ok(())
+                }
+                Err(e) => {
+                    // A full disk takes part of the line before it refuses the rest: the
+                    // file's length says how much (the torn part is cut by the caller).
+                    self.size = file
+                        .metadata()
+                        .map_or(self.size + line.len() as u64, |m| m.len());
+                    Err(anyhow::Error::new(e).context("cannot write to the journal"))
+                }
             },
-            rec,
-        ))
+        }
+    }
+
+    /// fdatasync of `current.jsonl`.
+    fn fsync(&mut self) -> anyhow::Result<()> {
+        self.check(Op::Sync).context("cannot fsync the journal")?;
+        let Some(file) = self.file.as_mut() else {
+            bail!("cannot fsync the journal: {CURRENT} is not open");
+        };
+        file.sync_data().context("cannot fsync the journal")?;
+        self.durable_size = self.size;
+        Ok(())
     }
 
     /// Appends one record (any serialisable value; it lands under `rec`). Returns its sequence
-    /// number. The whole line is written with one `write` call.
+    /// number. The whole line is written with one `write` call. A tolerant journal
+    /// ([`Journal::open_with`]) returns an error only for a record that cannot be serialised;
+    /// a refused write starts an outage instead (see [`Journal::health`]).
     pub fn append<T: Serialize>(&mut self, record: &T) -> anyhow::Result<u64> {
         let seq = self.next_seq;
+        let after = seq
+            .checked_add(1)
+            .context("the journal has used every sequence number")?;
         self.buf.clear();
-        line::encode(seq, record, &mut self.buf).context("cannot serialise journal record")?;
-        self.file
-            .write_all(&self.buf)
-            .context("cannot write to the journal")?;
-        self.size += self.buf.len() as u64;
-        self.next_seq += 1;
+        let wall = self.clock.now_ns();
+        line::encode_stamped(seq, Some(wall), record, &mut self.buf)
+            .context("cannot serialise journal record")?;
+        self.next_seq = after;
+        if self.outages.is_none() {
+            let line = std::mem::take(&mut self.buf);
+            let r = self.write_line(&line);
+            self.buf = line;
+            r?;
+            match self.cfg.fsync {
+                FsyncPolicy::Always => self.sync()?,
+                FsyncPolicy::IntervalMs(_) => self.tick()?,
+            }
+            if self.size >= self.cfg.rotate_bytes {
+                self.rotate()?;
+            }
+            return Ok(seq);
+        }
+        let line = self.buf.clone();
+        let down = self.outages.as_ref().is_some_and(|o| o.down.is_some());
+        if down {
+            self.push_backlog(Pending { seq, line });
+            self.retry_if_due();
+            return Ok(seq);
+        }
+        match self.write_line(&line) {
+            Ok(()) => {
+                if let Some(o) = self.outages.as_mut() {
+                    o.unsynced.push_back(Pending { seq, line });
+                }
+            }
+            Err(e) => {
+                self.push_backlog(Pending { seq, line });
+                self.fail(&e);
+                return Ok(seq);
+            }
+        }
         match self.cfg.fsync {
             FsyncPolicy::Always => self.sync()?,
             FsyncPolicy::IntervalMs(_) => self.tick()?,
         }
-        if self.size >= self.cfg.rotate_bytes {
-            self.rotate()?;
+        if self.size >= self.cfg.rotate_bytes && self.writable() {
+            if let Err(e) = self.rotate() {
+                self.fail(&e);
+            }
         }
         Ok(seq)
     }
 
     /// With [`FsyncPolicy::IntervalMs`]: fsyncs if the interval has passed and records are
-    /// pending. Call it periodically (the daemon does, once per loop turn).
+    /// pending. A tolerant journal in an outage also tries writing again here (at most every
+    /// [`Tolerance::retry_every`]). Call it periodically (the daemon does, once per loop
+    /// turn).
     pub fn tick(&mut self) -> anyhow::Result<()> {
+        if !self.writable() {
+            self.retry_if_due();
+            return Ok(());
+        }
         if let FsyncPolicy::IntervalMs(ms) = self.cfg.fsync {
             if self.pending() && self.last_sync.elapsed() >= Duration::from_millis(ms) {
                 self.sync()?;
@@ -249,17 +558,33 @@ impl Journal {
         self.durable_seq.map_or(0, |s| s + 1) < self.next_seq && self.next_seq > 1
     }
 
-    /// fsyncs now: every record appended so far is acknowledged afterwards.
+    /// fsyncs now: every record appended so far is acknowledged afterwards. A tolerant journal
+    /// in an outage tries to write its backlog first; if the disk still refuses, the call
+    /// succeeds and the records stay in the backlog (not acknowledged).
     pub fn sync(&mut self) -> anyhow::Result<()> {
+        if !self.writable() {
+            self.retry();
+            return Ok(());
+        }
         if self.pending() {
-            self.file.sync_data().context("cannot fsync the journal")?;
+            if let Err(e) = self.fsync() {
+                if self.outages.is_none() {
+                    return Err(e);
+                }
+                self.fail(&e);
+                return Ok(());
+            }
             self.durable_seq = Some(self.next_seq - 1);
+            if let Some(o) = self.outages.as_mut() {
+                o.unsynced.clear();
+            }
         }
         self.last_sync = Instant::now();
         Ok(())
     }
 
-    /// Highest acknowledged (fsynced) sequence number.
+    /// Highest acknowledged (fsynced) sequence number. In a tolerant journal every record up
+    /// to it is on disk, except those reported dropped ([`Health::dropped_seqs`]).
     pub fn durable_seq(&self) -> Option<u64> {
         self.durable_seq
     }
@@ -273,22 +598,171 @@ impl Journal {
         &self.dir
     }
 
+    /// False while a tolerant journal's disk refuses writes.
+    pub fn writable(&self) -> bool {
+        self.outages.as_ref().is_none_or(|o| o.down.is_none())
+    }
+
+    /// The outage state and its counters (a journal opened without [`Tolerance`] is always
+    /// reported writable, with zero counts: its errors go to the caller).
+    pub fn health(&self) -> Health {
+        match &self.outages {
+            None => Health {
+                writable: true,
+                ..Health::default()
+            },
+            Some(o) => {
+                let mut h = o.health.clone();
+                h.writable = o.down.is_none();
+                h.error = o.down.as_ref().map(|(_, e)| e.clone());
+                h.outage_s = o.down.as_ref().map(|(t, _)| t.elapsed().as_secs());
+                h.backlog_records = o.backlog.len() as u64;
+                h.backlog_bytes = o.backlog_bytes as u64;
+                h
+            }
+        }
+    }
+
+    /// A refused I/O operation of a tolerant journal: the outage starts (or goes on). Lines
+    /// written since the last fsync go back to the front of the backlog (they are not
+    /// acknowledged and may be torn or lost), and the file is cut back to its last durable
+    /// length when the disk allows it.
+    fn fail(&mut self, e: &anyhow::Error) {
+        let Some(o) = self.outages.as_mut() else {
+            return;
+        };
+        o.health.write_errors += 1;
+        if o.down.is_none() {
+            o.health.outages += 1;
+            o.down = Some((Instant::now(), format!("{e:#}")));
+        }
+        o.last_try = Instant::now();
+        while let Some(p) = o.unsynced.pop_back() {
+            o.backlog_bytes += p.line.len();
+            o.backlog.push_front(p);
+        }
+        self.enforce_backlog_limit();
+        if self.file.is_some() && self.size > self.durable_size {
+            let keep = self.durable_size;
+            if self.cut_tail(keep).is_err() {
+                // Read-only: cut on the next successful retry (recovery at the next open
+                // would cut it too: it is a torn or unacknowledged tail).
+                if let Some(o) = self.outages.as_mut() {
+                    o.health.write_errors += 1;
+                }
+            }
+        }
+        // Closed during the outage (each retry reopens it): a journal waiting for its disk
+        // holds no file open for writing, so the filesystem can be remounted or repaired.
+        self.file = None;
+    }
+
+    fn push_backlog(&mut self, p: Pending) {
+        if let Some(o) = self.outages.as_mut() {
+            o.backlog_bytes += p.line.len();
+            o.backlog.push_back(p);
+        }
+        self.enforce_backlog_limit();
+    }
+
+    /// Drops the oldest waiting records beyond the backlog's size (the newest one is always
+    /// kept), counting them.
+    fn enforce_backlog_limit(&mut self) {
+        let Some(o) = self.outages.as_mut() else {
+            return;
+        };
+        while o.backlog_bytes > o.tol.backlog_bytes && o.backlog.len() > 1 {
+            let p = o.backlog.pop_front().expect("len > 1");
+            o.backlog_bytes -= p.line.len();
+            o.health.dropped_records += 1;
+            o.health.dropped_seqs = Some(match o.health.dropped_seqs {
+                None => (p.seq, p.seq),
+                Some((a, b)) => (a.min(p.seq), b.max(p.seq)),
+            });
+        }
+    }
+
+    fn retry_if_due(&mut self) {
+        if self
+            .outages
+            .as_ref()
+            .is_some_and(|o| o.down.is_some() && o.last_try.elapsed() >= o.tol.retry_every)
+        {
+            self.retry();
+        }
+    }
+
+    /// One attempt to end an outage: reopen `current.jsonl`, cut what an earlier failure left
+    /// past the last fsync, write the backlog in order, fsync. On success the backlog's
+    /// records are acknowledged; on failure the outage goes on with everything still waiting.
+    fn retry(&mut self) {
+        let Some(o) = self.outages.as_mut() else {
+            return;
+        };
+        o.last_try = Instant::now();
+        let r = (|| -> anyhow::Result<()> {
+            let keep = self.durable_size;
+            self.file = None;
+            self.reopen()?;
+            if self.size > keep {
+                self.cut_tail(keep)?;
+            }
+            self.durable_size = self.size;
+            while let Some(p) = self.outages.as_mut().and_then(|o| o.backlog.pop_front()) {
+                let o = self.outages.as_mut().expect("tolerant");
+                o.backlog_bytes -= p.line.len();
+                let r = self.write_line(&p.line);
+                self.outages
+                    .as_mut()
+                    .expect("tolerant")
+                    .unsynced
+                    .push_back(p);
+                r?;
+            }
+            self.fsync()
+        })();
+        match r {
+            Ok(()) => {
+                let o = self.outages.as_mut().expect("tolerant");
+                o.health.delayed_records += o.unsynced.len() as u64;
+                o.unsynced.clear();
+                o.down = None;
+                self.durable_seq = self.next_seq.checked_sub(1).filter(|&s| s > 0);
+                self.last_sync = Instant::now();
+                if self.size >= self.cfg.rotate_bytes {
+                    if let Err(e) = self.rotate() {
+                        self.fail(&e);
+                    }
+                }
+            }
+            Err(e) => self.fail(&e),
+        }
+    }
+
     /// Closes `current.jsonl` as a numbered segment and starts a new one. Every step is atomic
     /// (rename) and made durable (fsync of the file, then of the directory), so a crash between
     /// steps leaves either the old or the new layout, never a half-written file.
     fn rotate(&mut self) -> anyhow::Result<()> {
         self.sync()?;
-        self.file.sync_all()?;
+        if !self.writable() {
+            return Ok(());
+        }
+        if let Some(f) = &self.file {
+            f.sync_all().context("cannot fsync the journal")?;
+        }
         let cur = self.dir.join(CURRENT);
         let first = first_seq(&cur)?.unwrap_or(self.next_seq);
         let seg = self.dir.join(segment_name(first));
+        self.check(Op::Rename)
+            .with_context(|| format!("cannot rotate journal to {}", seg.display()))?;
         fs::rename(&cur, &seg)
             .with_context(|| format!("cannot rotate journal to {}", seg.display()))?;
         fsync_dir(&self.dir)?;
-        self.file = OpenOptions::new().create(true).append(true).open(&cur)?;
-        fsync_dir(&self.dir)?;
+        // The renamed file is complete and durable; what follows goes to a new current.
+        self.file = None;
         self.size = 0;
-        Ok(())
+        self.durable_size = 0;
+        self.reopen()
     }
 }
 
@@ -316,6 +790,9 @@ fn first_seq(path: &Path) -> io::Result<Option<u64>> {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Entry {
     pub seq: u64,
+    /// When it was written (wall clock, ns since the Unix epoch), if stamped: information,
+    /// not order (the clock may have jumped).
+    pub wall_ns: Option<i64>,
     pub rec: serde_json::Value,
 }
 
@@ -330,6 +807,9 @@ pub struct Reader {
     problems: Vec<String>,
     last_seq: Option<u64>,
     out_of_order: u64,
+    missing: u64,
+    last_wall: Option<i64>,
+    jumps_back: u64,
 }
 
 impl Reader {
@@ -350,7 +830,22 @@ impl Reader {
             problems: Vec::new(),
             last_seq: None,
             out_of_order: 0,
+            missing: 0,
+            last_wall: None,
+            jumps_back: 0,
         })
+    }
+
+    /// Sequence numbers absent between the first and the last record read so far: records
+    /// dropped during a disk outage ([`Health::dropped_seqs`]) or lost with a damaged line.
+    pub fn missing(&self) -> u64 {
+        self.missing
+    }
+
+    /// Records stamped earlier than the record before them: the wall clock was set back
+    /// while the journal was written (they are still delivered in sequence order).
+    pub fn wall_clock_jumps_back(&self) -> u64 {
+        self.jumps_back
     }
 
     /// Lines that failed the CRC or did not parse.
@@ -387,14 +882,23 @@ impl Reader {
                 continue;
             }
             *lineno += 1;
-            match line::decode(&self.buf) {
-                Ok((seq, rec)) => {
-                    if self.last_seq.is_some_and(|l| seq <= l) {
-                        self.out_of_order += 1;
-                        continue;
+            match line::decode_full(&self.buf) {
+                Ok(line::Decoded { seq, wall_ns, rec }) => {
+                    if let Some(l) = self.last_seq {
+                        if seq <= l {
+                            self.out_of_order += 1;
+                            continue;
+                        }
+                        self.missing += seq - l - 1;
                     }
                     self.last_seq = Some(seq);
-                    return Ok(Some(Entry { seq, rec }));
+                    if let Some(w) = wall_ns {
+                        if self.last_wall.is_some_and(|lw| w < lw) {
+                            self.jumps_back += 1;
+                        }
+                        self.last_wall = Some(w);
+                    }
+                    return Ok(Some(Entry { seq, wall_ns, rec }));
                 }
                 Err(e) => {
                     self.invalid += 1;
