@@ -14,6 +14,8 @@ pub mod writer;
 use crate::wire::Frame;
 
 #[cfg(target_os = "linux")]
+mod rxbatch;
+#[cfg(target_os = "linux")]
 pub mod socketcan;
 
 /// Why a source skipped input (a counted, reported skip, never a panic).

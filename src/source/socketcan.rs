@@ -16,8 +16,13 @@
 //!   ([`LiveStats::clock_timestamps`]).
 //! - **Kernel drop count** (`SO_RXQ_OVFL`): frames the kernel dropped because this socket's
 //!   receive queue was full are added to [`SourceStats::dropped`], so loss is never silent. This
-//!   is why frames are read with `recvmsg` from `nix` here rather than through the crate's read
-//!   calls, which parse the timestamp control message but not the drop counter.
+//!   is why frames are read with `recvmmsg` here ([`super::rxbatch`]) rather than through the
+//!   crate's read calls, which parse the timestamp control message but not the drop counter.
+//! - **Batched reads**: one `recvmmsg` call takes every queued frame (up to
+//!   [`super::rxbatch::BATCH`]), each with its own timestamp and drop count, and on a busy bus
+//!   reads are at least [`LiveConfig::read_interval`] apart, so the reading thread wakes about
+//!   once per interval rather than once per frame. A frame waits at most that long in the
+//!   kernel's queue; its timestamp is still the kernel's receive time.
 //! - **Reconnection**: interface down, interface removed, or a bus-off error frame closes the
 //!   socket and reopens it with exponential backoff ([`LiveConfig::backoff_initial`] doubling up
 //!   to [`LiveConfig::backoff_max`]); every disconnect, failed retry and reconnect is reported
@@ -25,7 +30,8 @@
 //! - **A read timeout** ([`LiveConfig::read_timeout`]): [`CanSource::next_frame`] returns
 //!   `Err` of kind [`io::ErrorKind::TimedOut`] when no frame came in time, so the caller can run
 //!   periodic work; setting the [`LiveSource::stop_handle`] flag makes the next call return
-//!   `Ok(None)` (end of stream) within one timeout.
+//!   `Ok(None)` (end of stream) within one timeout, once the frames already read from the
+//!   socket have been delivered.
 //!
 //! Not here: decoding, any decision about what a frame means, and sending. A `LiveSource`
 //! never writes to the bus; sending is the separate, explicit [`LiveSink`].
@@ -48,9 +54,11 @@ use ::socketcan::{
     CanDataFrame, CanErrorFrame, CanFdFrame, CanFdSocket, CanFilter, CanRemoteFrame, EmbeddedFrame,
     ExtendedId, Id, Socket, SocketOptions, StandardId,
 };
+use nix::errno::Errno;
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
-use nix::sys::socket::{recvmsg, setsockopt, sockopt, ControlMessageOwned, MsgFlags};
+use nix::sys::socket::{setsockopt, sockopt};
 
+use super::rxbatch::{RxBatch, BATCH};
 use super::{CanSource, Skip, SourceStats};
 use crate::wire::frame::fd_len_to_dlc;
 use crate::wire::{Frame, FrameKind, IfaceName, MAX_DATA};
@@ -117,11 +125,16 @@ pub struct LiveConfig {
     /// Requested socket receive buffer (`SO_RCVBUF`, capped by the kernel's `rmem_max`);
     /// `None` keeps the kernel default.
     pub rcvbuf_bytes: Option<usize>,
+    /// Least time between two reads of the socket while frames keep coming: they gather in the
+    /// kernel's queue meanwhile and one call reads them all. Zero reads every frame as soon as
+    /// it arrives (a wake-up per frame). Keep it well below what the receive queue holds at the
+    /// bus rate (the kernel default queue holds a few hundred frames).
+    pub read_interval: Duration,
 }
 
 impl LiveConfig {
     /// Defaults for `iface`: FD on, all IDs, all error classes, 200 ms read timeout, backoff
-    /// 100 ms doubling to 5 s, reconnect on bus-off.
+    /// 100 ms doubling to 5 s, reconnect on bus-off, reads at least 5 ms apart.
     pub fn new(iface: &str) -> LiveConfig {
         LiveConfig {
             iface: iface.to_string(),
@@ -133,6 +146,7 @@ impl LiveConfig {
             backoff_max: Duration::from_secs(5),
             reconnect_on_bus_off: true,
             rcvbuf_bytes: None,
+            read_interval: Duration::from_millis(5),
         }
     }
 }
@@ -261,8 +275,13 @@ pub struct LiveSource {
     events: EventHandler,
     clock_ts_reported: bool,
     ever_connected: bool,
-    /// Control-message buffer for `recvmsg`, allocated once.
-    cmsg: Vec<u8>,
+    /// Records read from the socket and not yet delivered.
+    rx: RxBatch,
+    /// Whether the batch's records carry kernel timestamps (the connection's setting).
+    rx_kernel_ts: bool,
+    /// When the socket was last read, and whether that read filled the batch.
+    last_read: Option<Instant>,
+    last_full: bool,
 }
 
 impl LiveSource {
@@ -317,7 +336,10 @@ impl LiveSource {
             events: stderr_handler(),
             clock_ts_reported: false,
             ever_connected: false,
-            cmsg: nix::cmsg_space!(nix::sys::time::TimeSpec, u32),
+            rx: RxBatch::new(),
+            rx_kernel_ts: false,
+            last_read: None,
+            last_full: false,
         })
     }
 
@@ -496,89 +518,96 @@ impl LiveSource {
         }
     }
 
-    /// Read one frame from the open socket, waiting at most until `deadline`.
-    /// `Ok(None)`: nothing yet (timeout or a skipped record).
-    fn recv_up(&mut self, deadline: Instant) -> io::Result<Option<Frame>> {
+    /// Reads every queued record of the open socket (up to [`BATCH`]) into the batch, waiting
+    /// at most until `deadline` for the first. While the bus is busy, reads are at least
+    /// [`LiveConfig::read_interval`] apart (unless the last one filled the batch). Returns with
+    /// an empty batch on timeout, on a signal, or while that interval has not passed.
+    fn fill(&mut self, deadline: Instant) -> io::Result<()> {
         let Conn::Up {
             sock,
             drops_seen,
             kernel_ts,
         } = &self.conn
         else {
-            return Ok(None);
+            return Ok(());
         };
-        let (fd, drops_seen, kernel_ts) = (sock.as_raw_fd(), *drops_seen, *kernel_ts);
-        let wait = deadline.saturating_duration_since(Instant::now());
-        let mut fds = [PollFd::new(sock.as_fd(), PollFlags::POLLIN)];
-        let timeout = PollTimeout::try_from(wait).unwrap_or(PollTimeout::MAX);
-        match poll(&mut fds, timeout) {
-            Ok(0) | Err(nix::errno::Errno::EINTR) => return Ok(None),
-            Ok(_) => {}
-            Err(e) => return Err(e.into()),
-        }
-        let mut buf = [0u8; CANFD_MTU];
-        let mut iov = [io::IoSliceMut::new(&mut buf)];
-        let (n, truncated, ts, drops) = {
-            let msg = match recvmsg::<()>(
-                fd,
-                &mut iov,
-                Some(&mut self.cmsg),
-                MsgFlags::MSG_DONTWAIT | MsgFlags::MSG_TRUNC,
-            ) {
-                Ok(m) => m,
-                Err(nix::errno::Errno::EAGAIN) | Err(nix::errno::Errno::EINTR) => return Ok(None),
-                Err(e) => return Err(e.into()),
-            };
-            let mut ts = None;
-            let mut drops = None;
-            if let Ok(cmsgs) = msg.cmsgs() {
-                for c in cmsgs {
-                    match c {
-                        ControlMessageOwned::ScmTimestampns(t) => {
-                            ts = Some(t.tv_sec() as i64 * 1_000_000_000 + t.tv_nsec() as i64)
-                        }
-                        ControlMessageOwned::RxqOvfl(d) => drops = Some(d),
-                        _ => {}
-                    }
+        let (fd, seen) = (sock.as_raw_fd(), *drops_seen);
+        self.rx_kernel_ts = *kernel_ts;
+        if let (Some(last), false) = (self.last_read, self.last_full) {
+            let next = last + self.cfg.read_interval;
+            let now = Instant::now();
+            if now < next {
+                std::thread::sleep(next.min(deadline) - now);
+                if Instant::now() < next {
+                    return Ok(());
                 }
             }
-            (
-                msg.bytes,
-                msg.flags.contains(MsgFlags::MSG_TRUNC),
-                ts,
-                drops,
-            )
+        }
+        let n = match self.rx.fill(fd) {
+            Ok(n) => n,
+            Err(Errno::EAGAIN) | Err(Errno::EINTR) => {
+                let wait = deadline.saturating_duration_since(Instant::now());
+                let mut fds = [PollFd::new(sock.as_fd(), PollFlags::POLLIN)];
+                let timeout = PollTimeout::try_from(wait).unwrap_or(PollTimeout::MAX);
+                match poll(&mut fds, timeout) {
+                    Ok(0) | Err(Errno::EINTR) => return Ok(()),
+                    Ok(_) => {}
+                    Err(e) => return Err(e.into()),
+                }
+                match self.rx.fill(fd) {
+                    Ok(n) => n,
+                    Err(Errno::EAGAIN) | Err(Errno::EINTR) => return Ok(()),
+                    Err(e) => return Err(e.into()),
+                }
+            }
+            Err(e) => return Err(e.into()),
         };
-        if let Some(d) = drops {
-            // Cumulative count since the socket opened (wraps at u32); reported with the next
-            // frame the kernel does queue.
-            self.stats.dropped += d.wrapping_sub(drops_seen) as u64;
+        self.last_read = Some(Instant::now());
+        self.last_full = n == BATCH;
+        // The drop count is cumulative since the socket opened (wraps at u32) and travels with
+        // the frames the kernel does queue: the batch's last one has the newest.
+        if let Some(d) = self.rx.last_drops() {
+            self.stats.dropped += d.wrapping_sub(seen) as u64;
             if let Conn::Up { drops_seen, .. } = &mut self.conn {
                 *drops_seen = d;
             }
         }
-        let t_ns = match ts {
-            Some(t) if kernel_ts => t,
-            _ => {
-                self.live.clock_timestamps += 1;
-                self.report_clock_ts(if kernel_ts {
-                    "a frame arrived without SO_TIMESTAMPNS"
-                } else {
-                    "SO_TIMESTAMPNS not enabled"
-                });
-                clock_ns()
-            }
-        };
-        if truncated || n > CANFD_MTU {
-            self.skip(format!("record of {n} bytes is larger than a CAN FD frame"));
-            return Ok(None);
-        }
-        match frame_from_kernel(&buf[..n], t_ns, self.iface) {
-            Ok(f) => Ok(Some(f)),
-            Err(reason) => {
-                self.skip(format!("{reason} ({n} bytes)"));
-                Ok(None)
-            }
+        Ok(())
+    }
+
+    /// The next frame of the batch already read; malformed records are skipped and counted.
+    fn next_read(&mut self) -> Option<Frame> {
+        loop {
+            let (record, meta) = self.rx.pop()?;
+            let parsed = if meta.truncated || meta.bytes > CANFD_MTU {
+                Err(format!(
+                    "record of {} bytes is larger than a CAN FD frame",
+                    meta.bytes
+                ))
+            } else {
+                frame_from_kernel(record, 0, self.iface)
+                    .map_err(|reason| format!("{reason} ({} bytes)", meta.bytes))
+            };
+            let mut f = match parsed {
+                Ok(f) => f,
+                Err(reason) => {
+                    self.skip(reason);
+                    continue;
+                }
+            };
+            f.t_ns = match meta.t_ns {
+                Some(t) if self.rx_kernel_ts => t,
+                _ => {
+                    self.live.clock_timestamps += 1;
+                    self.report_clock_ts(if self.rx_kernel_ts {
+                        "a frame arrived without SO_TIMESTAMPNS"
+                    } else {
+                        "SO_TIMESTAMPNS not enabled"
+                    });
+                    clock_ns()
+                }
+            };
+            return Some(f);
         }
     }
 
@@ -595,11 +624,28 @@ impl LiveSource {
 
 impl CanSource for LiveSource {
     /// The next frame, blocking at most [`LiveConfig::read_timeout`]: `Err(TimedOut)` when none
-    /// came (also while reconnecting), `Ok(None)` once the stop flag is set. Socket failures are
-    /// not returned: they trigger a reconnect (see the module docs).
+    /// came (also while reconnecting), `Ok(None)` once the stop flag is set (after the frames
+    /// already read from the socket). Socket failures are not returned: they trigger a
+    /// reconnect (see the module docs).
     fn next_frame(&mut self) -> io::Result<Option<Frame>> {
         let deadline = Instant::now() + self.cfg.read_timeout;
         loop {
+            if let Some(f) = self.next_read() {
+                self.stats.frames += 1;
+                if f.kind == FrameKind::Error {
+                    self.stats.error_frames += 1;
+                    if f.id & CAN_ERR_RESTARTED != 0 {
+                        self.live.restarted += 1;
+                    }
+                    if f.id & CAN_ERR_BUSOFF != 0 {
+                        self.live.bus_off += 1;
+                        if self.cfg.reconnect_on_bus_off {
+                            self.disconnect("bus-off error frame");
+                        }
+                    }
+                }
+                return Ok(Some(f));
+            }
             if self.stop.load(Ordering::Relaxed) {
                 return Ok(None);
             }
@@ -610,27 +656,10 @@ impl CanSource for LiveSource {
                 }
                 continue;
             }
-            match self.recv_up(deadline) {
-                Ok(Some(f)) => {
-                    self.stats.frames += 1;
-                    if f.kind == FrameKind::Error {
-                        self.stats.error_frames += 1;
-                        if f.id & CAN_ERR_RESTARTED != 0 {
-                            self.live.restarted += 1;
-                        }
-                        if f.id & CAN_ERR_BUSOFF != 0 {
-                            self.live.bus_off += 1;
-                            if self.cfg.reconnect_on_bus_off {
-                                self.disconnect("bus-off error frame");
-                            }
-                        }
-                    }
-                    return Ok(Some(f));
-                }
-                Ok(None) => {}
-                Err(e) => self.disconnect(&e.to_string()),
+            if let Err(e) = self.fill(deadline) {
+                self.disconnect(&e.to_string());
             }
-            if Instant::now() >= deadline {
+            if self.rx.pending() == 0 && Instant::now() >= deadline {
                 self.live.timeouts += 1;
                 return Err(io::ErrorKind::TimedOut.into());
             }
