@@ -347,7 +347,12 @@ journal_dir = "j"
 state_dir = "s"
 transmit_interface = "can0"
 [mqtt]
-queue_dir = "q"
+cursor_file = "q"
+port = 8883
+transport = "tls"
+ca_file = "ca.pem"
+cert_file = "v.pem"
+key_file = "v.key"
 "#,
     )
     .unwrap();

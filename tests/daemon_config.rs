@@ -226,10 +226,15 @@ fn enabled_mqtt_settings_are_checked() {
         "enabled = true\nhost = \"localhost\"",
         1,
     );
-    let on = on.replacen("client_id = \"\"", "client_id = \"van-17\"", 1);
+    let on = on.replacen(
+        "client_id = \"\"",
+        "client_id = \"van-17\"\nfleet = \"f\"",
+        1,
+    );
+    let on = on.replacen("port = 1883", "port = 1883\ntransport = \"tcp\"", 1);
     let c = load(&on).unwrap();
     assert!(c.mqtt.enabled);
-    assert_eq!((c.mqtt.port, c.mqtt.qos), (1883, 1));
+    assert_eq!((c.mqtt.port(), c.mqtt.qos), (1883, 1));
     for (from, to, needle) in [
         (
             "client_id = \"van-17\"",
@@ -317,4 +322,78 @@ fn shimmyd_refuses_a_broken_config_at_start() {
         "{err}"
     );
     assert!(err.contains("bad.toml"), "{err}");
+}
+
+/// Plain text only when written: an enabled client needs TLS settings or `transport = "tcp"`;
+/// TLS needs the CA; a client certificate comes with its key; the files must exist.
+#[test]
+fn mqtt_sends_in_plain_text_only_when_the_file_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    for f in ["ca.pem", "van.pem", "van.key"] {
+        std::fs::write(dir.path().join(f), "").unwrap();
+    }
+    let on = default_text()
+        .replacen(
+            "enabled = false\nhost = \"\"",
+            "enabled = true\nhost = \"broker.example\"",
+            1,
+        )
+        .replacen(
+            "client_id = \"\"",
+            "client_id = \"van-17\"\nfleet = \"f\"",
+            1,
+        )
+        .replacen("port = 1883\n", "", 1);
+    let with = |extra: &str| on.replacen("[mqtt]\n", &format!("[mqtt]\n{extra}\n"), 1);
+    let p = |f: &str| format!("{:?}", dir.path().join(f).display().to_string());
+
+    let e = load(&on).expect_err("enabled without TLS settings or transport = \"tcp\"");
+    assert!(
+        e.contains("mqtt.transport") && e.contains("ca_file") && e.contains("transport = \"tcp\""),
+        "{e}"
+    );
+    let c = load(&with("transport = \"tcp\"")).unwrap();
+    assert_eq!(c.mqtt.port(), 1883);
+    // TLS without a CA.
+    let e = load(&with("transport = \"tls\"")).unwrap_err();
+    assert!(e.contains("mqtt.ca_file") && e.contains("required"), "{e}");
+    // The CA alone means TLS, on 8883.
+    let c = load(&with(&format!("ca_file = {}", p("ca.pem")))).unwrap();
+    assert_eq!(
+        (c.mqtt.transport(), c.mqtt.port()),
+        (Some(shimmy::daemon::config::Transport::Tls), 8883)
+    );
+    let mtls = format!(
+        "ca_file = {}\ncert_file = {}\nkey_file = {}",
+        p("ca.pem"),
+        p("van.pem"),
+        p("van.key")
+    );
+    load(&with(&mtls)).unwrap();
+    for (extra, needles) in [
+        (
+            format!("ca_file = {}\ncert_file = {}", p("ca.pem"), p("van.pem")),
+            &["mqtt.cert_file and mqtt.key_file", "both"][..],
+        ),
+        (
+            format!("transport = \"tcp\"\n{mtls}"),
+            &["mqtt.ca_file", "transport = \"tcp\""][..],
+        ),
+        (
+            format!("ca_file = {}", p("nope.pem")),
+            &["mqtt.ca_file", "does not exist"][..],
+        ),
+        (
+            "transport = \"ssl\"".to_string(),
+            &["transport", "unknown variant"][..],
+        ),
+    ] {
+        let e = load(&with(&extra)).expect_err(&extra);
+        for n in needles {
+            assert!(
+                e.contains(n),
+                "`{extra}`: error does not mention `{n}`:\n{e}"
+            );
+        }
+    }
 }

@@ -5,12 +5,13 @@ use std::path::PathBuf;
 use clap::Parser;
 use shimmy::daemon::config::Config;
 use shimmy::daemon::run::{run, Options};
+use shimmy::daemon::sandbox;
 
 /// shimmyd watches a vehicle's CAN bus (SocketCAN, read-only) or replays CAN logs, detects
 /// braking events, estimates steering-joint clearance, raises maintenance alerts and writes
 /// them to a crash-safe journal.
 ///
-/// Live: `shimmyd --config /etc/shimmyd.toml` reads the interfaces of `[input]`. Replay:
+/// Live: `shimmyd --config /etc/shimmyd/shimmyd.toml` reads the interfaces of `[input]`. Replay:
 /// `shimmyd --config FILE --replay LOG...` plays the logs (candump -L, ASC, BLF, MF4) at their
 /// recorded timing, or as fast as possible with `--fast`, then exits.
 ///
@@ -39,9 +40,17 @@ struct Cli {
     /// Overrides outputs.state_dir.
     #[arg(long, value_name = "DIR")]
     state_dir: Option<PathBuf>,
-    /// Check the configuration and exit.
+    /// Check the configuration and exit. Prints the vehicle profile folder and DBC in use.
+    /// Under the systemd unit (SHIMMYD_SANDBOX set) it also checks that the service's sandbox
+    /// was made from this configuration (with [mqtt] enabled: the broker's drop-in).
     #[arg(long)]
     check: bool,
+    /// Print the systemd drop-in this configuration needs beyond the unit's sandbox (nothing
+    /// when [mqtt] is off: the unit allows no IP connection; with it, AF_INET/AF_INET6 and the
+    /// broker's address) and exit. The Debian package's generator runs this at boot and at
+    /// every `systemctl daemon-reload` (docs/GATEWAY.md).
+    #[arg(long, conflicts_with_all = ["check", "replay"])]
+    sandbox_dropin: bool,
     /// Test helper (crash tests): append numbered records to the journal in DIR forever,
     /// printing each acknowledged (fsynced) sequence number on stdout.
     #[arg(long, value_name = "DIR", hide = true)]
@@ -72,17 +81,47 @@ fn journal_stress(dir: &std::path::Path) -> anyhow::Result<()> {
     }
 }
 
+/// `--check`: loads and validates, says which car files are in use, checks the sandbox.
+fn check(path: &std::path::Path, profile: Option<&str>) -> anyhow::Result<()> {
+    let c = Config::load_with_profile(path, profile)?;
+    c.print_warnings();
+    let env = std::env::var(sandbox::ENV).ok();
+    if let Some(w) = sandbox::check_env(&c, env.as_deref())? {
+        eprintln!("warning: {w}");
+    }
+    if let Some(p) = &c.profile {
+        eprintln!("shimmyd: vehicle profile {}", p.dir.display());
+    }
+    if let Some((dbc, mapping)) = c.bus_files() {
+        eprintln!(
+            "shimmyd: DBC {}, mapping {}",
+            dbc.display(),
+            mapping.display()
+        );
+    }
+    eprintln!("shimmyd: {} is valid", path.display());
+    Ok(())
+}
+
+/// `--sandbox-dropin`: the drop-in on stdout, nothing when none is needed.
+fn sandbox_dropin(path: &std::path::Path) -> anyhow::Result<()> {
+    let c = Config::load(path)?;
+    if let Some(text) = sandbox::dropin(&c, &path.display().to_string())? {
+        print!("{text}");
+    }
+    Ok(())
+}
+
 fn main() {
     let cli = Cli::parse();
     let result = if let Some(dir) = &cli.journal_stress {
         journal_stress(dir)
     } else {
         let config = cli.config.expect("clap requires --config");
-        if cli.check {
-            Config::load_with_profile(&config, cli.profile.as_deref()).map(|c| {
-                c.print_warnings();
-                eprintln!("shimmyd: {} is valid", config.display())
-            })
+        if cli.sandbox_dropin {
+            sandbox_dropin(&config)
+        } else if cli.check {
+            check(&config, cli.profile.as_deref())
         } else {
             run(
                 Options {

@@ -229,27 +229,72 @@ pub struct ObserverSection {
 #[serde(deny_unknown_fields, default)]
 pub struct MqttSection {
     pub enabled: bool,
-    /// Broker host name or address (required when enabled).
+    /// Broker host name or address (required when enabled). With TLS, the name (or IP address)
+    /// the broker's certificate must carry.
     pub host: String,
-    pub port: u16,
+    /// Broker port; default 8883 with TLS, 1883 with `transport = "tcp"` ([`Self::port`]).
+    pub port: Option<u16>,
+    /// `"tls"` or `"tcp"`. Unset means TLS when `ca_file` is given; an enabled client with
+    /// neither is refused: plain text is sent only when the file says `transport = "tcp"`.
+    pub transport: Option<Transport>,
+    /// PEM file of the CA(s) the broker's certificate must chain to (required with TLS).
+    pub ca_file: Option<PathBuf>,
+    /// PEM file of this vehicle's client certificate (chain), for mutual TLS; with `key_file`.
+    pub cert_file: Option<PathBuf>,
+    /// PEM file of the client certificate's private key (PKCS#8, PKCS#1 or SEC1).
+    pub key_file: Option<PathBuf>,
     /// MQTT client id (required when enabled); also the vehicle's name in topics and ids.
     pub client_id: String,
-    /// Topics are `<topic_prefix>/<client_id>/event` and `.../alert`.
+    /// The fleet the vehicle belongs to (required when enabled): a topic level.
+    pub fleet: String,
+    /// Topics are `<topic_prefix>/v1/<fleet>/<client_id>/{event,estimate,alert,status}`.
     pub topic_prefix: String,
+    /// MQTT 5 message expiry interval of estimates (s): a broker drops an estimate not
+    /// delivered to a subscriber within this time (a newer one supersedes it).
+    pub estimate_expiry_s: u32,
     /// 0, 1 or 2. 1 (at least once) or 2 are needed for the no-loss guarantee.
     pub qos: u8,
     pub keep_alive_s: u64,
     /// Pause between connection attempts while the broker is unreachable (s).
     pub reconnect_s: f64,
-    /// The on-disk outbox; default `<state_dir>/mqtt-outbox`.
-    pub queue_dir: Option<PathBuf>,
-    /// Outbox bound: beyond either limit the oldest queued messages are dropped (counted,
-    /// logged, and reported to the backend in every message's `queue_dropped`).
+    /// The cursor into the journal (first record not yet delivered); default
+    /// `<state_dir>/mqtt-cursor.json`. The journal itself is the queue.
+    pub cursor_file: Option<PathBuf>,
+    /// Queue bound: beyond either limit the oldest queued messages are dropped (counted,
+    /// logged, and reported to the backend in every message's `queue_dropped`; they stay in
+    /// the journal).
     pub queue_max_messages: usize,
     pub queue_max_mib: f64,
-    /// On stop, wait up to this long for the outbox to drain (s); the rest is sent after the
+    /// On stop, wait up to this long for the queue to drain (s); the rest is sent after the
     /// next start.
     pub drain_timeout_s: f64,
+}
+
+/// `mqtt.transport`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Transport {
+    /// TLS 1.2/1.3 (rustls), the broker verified against `ca_file`.
+    Tls,
+    /// Plain TCP: unencrypted and the broker unauthenticated.
+    Tcp,
+}
+
+impl MqttSection {
+    /// The transport in effect: the one written, else TLS when `ca_file` is given. `None`
+    /// (neither) is refused by the configuration check when MQTT is enabled.
+    pub fn transport(&self) -> Option<Transport> {
+        self.transport
+            .or(self.ca_file.as_ref().map(|_| Transport::Tls))
+    }
+
+    /// The port in effect: `port`, else 8883 (MQTT over TLS) or 1883 (plain).
+    pub fn port(&self) -> u16 {
+        self.port.unwrap_or(match self.transport() {
+            Some(Transport::Tcp) => 1883,
+            _ => 8883,
+        })
+    }
 }
 
 impl Default for MqttSection {
@@ -257,13 +302,19 @@ impl Default for MqttSection {
         MqttSection {
             enabled: false,
             host: String::new(),
-            port: 1883,
+            port: None,
+            transport: None,
+            ca_file: None,
+            cert_file: None,
+            key_file: None,
             client_id: String::new(),
+            fleet: String::new(),
             topic_prefix: "shimmy".into(),
+            estimate_expiry_s: 86_400,
             qos: 1,
             keep_alive_s: 30,
             reconnect_s: 2.0,
-            queue_dir: None,
+            cursor_file: None,
             queue_max_messages: 10_000,
             queue_max_mib: 8.0,
             drain_timeout_s: 2.0,
@@ -450,7 +501,15 @@ impl Config {
         }
         fix(&mut self.outputs.journal_dir);
         fix(&mut self.outputs.state_dir);
-        if let Some(p) = self.mqtt.queue_dir.as_mut() {
+        for p in [
+            &mut self.mqtt.cursor_file,
+            &mut self.mqtt.ca_file,
+            &mut self.mqtt.cert_file,
+            &mut self.mqtt.key_file,
+        ]
+        .into_iter()
+        .flatten()
+        {
             fix(p);
         }
     }
@@ -541,7 +600,7 @@ impl Config {
         if m.enabled && m.host.trim().is_empty() {
             bail!("mqtt.host: required when mqtt.enabled = true");
         }
-        if m.port == 0 {
+        if m.port == Some(0) {
             bail!("mqtt.port: must be 1..=65535");
         }
         let topic_safe = |s: &str| !s.is_empty() && !s.contains(['+', '#', '\0']);
@@ -552,6 +611,17 @@ impl Config {
                 "mqtt.client_id: required when mqtt.enabled = true; 1-64 characters without '/', '+' or '#' (got \"{}\")",
                 m.client_id
             );
+        }
+        if (m.enabled || !m.fleet.is_empty())
+            && (!topic_safe(&m.fleet) || m.fleet.contains('/') || m.fleet.len() > 64)
+        {
+            bail!(
+                "mqtt.fleet: required when mqtt.enabled = true; 1-64 characters without '/', '+' or '#' (got \"{}\")",
+                m.fleet
+            );
+        }
+        if m.estimate_expiry_s == 0 {
+            bail!("mqtt.estimate_expiry_s: must be >= 1 (got 0)");
         }
         if !topic_safe(&m.topic_prefix)
             || m.topic_prefix.starts_with('/')
@@ -594,6 +664,61 @@ impl Config {
                 "mqtt.drain_timeout_s: must be 0..=600 (got {})",
                 m.drain_timeout_s
             );
+        }
+        self.validate_mqtt_transport()
+    }
+
+    /// TLS or plain TCP: plain only when written; TLS needs the CA, and a client certificate
+    /// comes with its key. What needs files (and that they exist) is checked when MQTT is
+    /// enabled; contradictions always.
+    fn validate_mqtt_transport(&self) -> anyhow::Result<()> {
+        let m = &self.mqtt;
+        if m.cert_file.is_some() != m.key_file.is_some() {
+            bail!(
+                "mqtt.cert_file and mqtt.key_file: give both (the client certificate and its private key) or neither"
+            );
+        }
+        match m.transport() {
+            None if m.enabled => bail!(
+                "mqtt.transport: [mqtt] is enabled without TLS settings; give mqtt.ca_file (the CA \
+                 that signed the broker's certificate, with mqtt.cert_file and mqtt.key_file for this \
+                 vehicle's client certificate), or write transport = \"tcp\" to send to the broker \
+                 in plain text, unencrypted and without authenticating it"
+            ),
+            None => {}
+            Some(Transport::Tcp) => {
+                for (key, p) in [
+                    ("ca_file", &m.ca_file),
+                    ("cert_file", &m.cert_file),
+                    ("key_file", &m.key_file),
+                ] {
+                    if p.is_some() {
+                        bail!(
+                            "mqtt.{key}: given with transport = \"tcp\", which uses no TLS; remove one of them"
+                        );
+                    }
+                }
+            }
+            Some(Transport::Tls) => {
+                if m.enabled && m.ca_file.is_none() {
+                    bail!(
+                        "mqtt.ca_file: required with transport = \"tls\" (the CA the broker's certificate must chain to)"
+                    );
+                }
+            }
+        }
+        if m.enabled {
+            for (key, p) in [
+                ("ca_file", &m.ca_file),
+                ("cert_file", &m.cert_file),
+                ("key_file", &m.key_file),
+            ] {
+                if let Some(p) = p {
+                    if !p.is_file() {
+                        bail!("mqtt.{key}: file {} does not exist", p.display());
+                    }
+                }
+            }
         }
         Ok(())
     }

@@ -14,7 +14,9 @@
 //! | [`run`] | the loop: sources, signals (SIGTERM, SIGHUP), sd_notify, outputs |
 //! | [`transmit`] | SHIMMY_01 on the bus, only when the configuration enables it |
 //! | [`mqtt`] | the optional outgoing MQTT client to a fleet backend |
-//! | [`outbox`] | MQTT's crash-safe on-disk queue while the broker is unreachable |
+//! | [`outbox`] | what MQTT still has to send: a cursor into the journal, which is the queue |
+//! | [`sandbox`] | the systemd drop-in a configuration needs beyond the unit's sandbox (MQTT), and its check at start |
+//! | [`tls`] | MQTT's TLS client configuration (CA, client certificate) and its errors explained |
 //!
 //! What it is not: a network service. shimmyd opens no listening socket; its only network use
 //! is the outgoing MQTT connection, when `[mqtt] enabled = true`.
@@ -24,6 +26,8 @@ pub mod counters;
 pub mod mqtt;
 pub mod outbox;
 pub mod run;
+pub mod sandbox;
 pub mod stage;
 pub mod state;
+pub mod tls;
 pub mod transmit;

@@ -10,6 +10,12 @@
 //! save the state and exit 0; SIGHUP re-reads the configuration and applies `[alerts]` and
 //! `[log]` at once (a broken file is reported and the running configuration kept; `[input]`,
 //! `[events]` and `[outputs]` changes need a restart, which is logged).
+//! Disk faults: the journal is opened tolerant ([`crate::journal::Tolerance`]): when its disk
+//! fills up or turns read-only, monitoring goes on, records wait in a bounded in-memory backlog
+//! and are written when the disk takes them again; the change is logged both ways, counted
+//! ([`Counters`]), kept in the state ([`State::journal`]) and, once over, journaled as a
+//! `journal_outage` record. A state file that cannot be saved is logged and saved again
+//! after the next event.
 //! systemd: `READY=1` once the sources are open, `WATCHDOG=1` every second from the loop (so a
 //! hung loop is restarted), `STOPPING=1` on the way out; all no-ops outside systemd.
 //!
@@ -27,9 +33,8 @@ use serde_json::json;
 use super::config::Config;
 use super::counters::{self, Counters};
 use super::state::{self, State};
-use crate::alerts::Transition;
 use crate::dbc::Database;
-use crate::journal::Journal;
+use crate::journal::{Journal, Setup, Tolerance};
 use crate::monitor::{EventStage, EventSummary, Sample};
 use crate::pipeline::{detector_sample, finish_event, Finished, SpeedIntegrator};
 use crate::signals::mapping::MappingConfig;
@@ -333,6 +338,8 @@ struct Daemon {
     speed: SpeedIntegrator,
     events: u64,
     mqtt: Option<super::mqtt::Publisher>,
+    /// The journal's writability when last looked at ([`Daemon::journal_health`]).
+    journal_writable: bool,
 }
 
 impl Daemon {
@@ -409,41 +416,60 @@ impl Daemon {
             self.journal
                 .append(&json!({ "type": "alert", "transition": what, "alert": a }))?;
         }
-        self.publish_event(&e, est.as_ref(), &transitions)?;
         self.state.estimate = est;
         self.state.push_event(e);
         self.journal.sync()?;
-        self.save_state()
+        self.journal_health();
+        // MQTT sends from the journal: the event, estimate and alert records just made durable.
+        if let Some(m) = &self.mqtt {
+            m.journal_durable(self.journal.durable_seq());
+        }
+        // The state is a cache of what the journal holds: a disk that refuses it costs a
+        // faster resume, not monitoring. Saved again after the next event.
+        if let Err(e) = self.save_state() {
+            log(format_args!(
+                "state: {e:#}; kept in memory, saved again after the next event"
+            ));
+        }
+        Ok(())
+    }
+
+    /// Logs the journal's changes between writing and refusing to write, and journals an
+    /// outage once it is over.
+    fn journal_health(&mut self) {
+        let writable = self.journal.writable();
+        if writable == self.journal_writable {
+            return;
+        }
+        self.journal_writable = writable;
+        let h = self.journal.health();
+        if !writable {
+            log(format_args!(
+                "journal: the disk refuses writes ({}): monitoring goes on, records wait in memory (up to {} KiB, oldest dropped beyond) and are written when it takes them again",
+                h.error.as_deref().unwrap_or("?"),
+                Tolerance::default().backlog_bytes / 1024
+            ));
+        } else {
+            log(format_args!(
+                "journal: writing again; {} record(s) written late, {} dropped{} since start, {} failed write(s)",
+                h.delayed_records,
+                h.dropped_records,
+                h.dropped_seqs
+                    .map_or(String::new(), |(a, b)| format!(" (seq {a}..={b})")),
+                h.write_errors
+            ));
+            let _ = self
+                .journal
+                .append(&json!({ "type": "journal_outage", "health": h }));
+        }
     }
 
     fn save_state(&mut self) -> anyhow::Result<()> {
+        self.state.journal = Some(self.journal.health());
         self.state.journal_seq = self.journal.durable_seq();
         self.state.stage = self.stage.save();
         self.state.last_speed = self.speed.last;
         state::save(&self.state_dir, &self.state)
-    }
-
-    /// Queues the event summary and the alert transitions for MQTT, when configured.
-    fn publish_event(
-        &self,
-        e: &EventSummary,
-        est: Option<&crate::monitor::Estimate>,
-        transitions: &[Transition],
-    ) -> anyhow::Result<()> {
-        let Some(m) = &self.mqtt else {
-            return Ok(());
-        };
-        m.publish("event", json!({ "event": e, "estimate": est }))
-            .context("mqtt outbox")?;
-        for t in transitions {
-            let (what, a) = t.parts();
-            m.publish(
-                "alert",
-                json!({ "transition": what, "alert": a, "odometer_km": e.odometer_km }),
-            )
-            .context("mqtt outbox")?;
-        }
-        Ok(())
     }
 
     fn reload(&mut self) {
@@ -597,8 +623,15 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
         .state_dir
         .clone()
         .unwrap_or(cfg.outputs.state_dir.clone());
-    let (journal, rec) =
-        Journal::open(&cfg.outputs.journal_dir, cfg.journal()).context("outputs.journal_dir")?;
+    let (journal, rec) = Journal::open_with(
+        &cfg.outputs.journal_dir,
+        cfg.journal(),
+        Setup {
+            tolerance: Some(Tolerance::default()),
+            ..Setup::default()
+        },
+    )
+    .context("outputs.journal_dir")?;
     if rec.truncated_bytes > 0 || rec.corrupt_lines > 0 {
         log(format_args!(
             "journal recovery: cut a torn/corrupt tail of {} bytes, {} corrupt line(s) skipped, last good record {:?}",
@@ -656,31 +689,36 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
     };
     let mut sink = open_sink(&cfg, &db, live)?;
     let mqtt = if cfg.mqtt.enabled {
-        let dir = cfg
+        let cursor = cfg
             .mqtt
-            .queue_dir
+            .cursor_file
             .clone()
-            .unwrap_or_else(|| state_dir.join("mqtt-outbox"));
-        let (p, opened) = super::mqtt::Publisher::start(&cfg.mqtt, &dir)?;
+            .unwrap_or_else(|| state_dir.join("mqtt-cursor.json"));
+        let (p, opened) = super::mqtt::Publisher::start(
+            &cfg.mqtt,
+            &cfg.outputs.journal_dir,
+            journal.next_seq(),
+            &cursor,
+        )?;
+        p.journal_durable(journal.durable_seq());
+        let pending = p.queued();
         if let Some(problem) = &opened.problem {
             log(format_args!("mqtt: {problem}"));
         }
         log(format_args!(
-            "mqtt: publishing to {}:{} as {} (QoS {}), outbox {} with {} message(s) queued from before{}",
+            "mqtt: publishing to {}:{} over {} as {} of fleet {} (QoS {}), from the journal at record {} (cursor {}), {} message(s) queued from before",
             cfg.mqtt.host,
-            cfg.mqtt.port,
+            cfg.mqtt.port(),
+            match cfg.mqtt.transport() {
+                Some(super::config::Transport::Tcp) => "plain TCP",
+                _ => "TLS",
+            },
             cfg.mqtt.client_id,
+            cfg.mqtt.fleet,
             cfg.mqtt.qos,
-            dir.display(),
-            opened.pending,
-            if opened.truncated_bytes > 0 || opened.invalid_lines > 0 {
-                format!(
-                    " (recovery: cut a torn tail of {} bytes, skipped {} invalid line(s))",
-                    opened.truncated_bytes, opened.invalid_lines
-                )
-            } else {
-                String::new()
-            }
+            opened.from_seq,
+            cursor.display(),
+            pending,
         ));
         Some(p)
     } else {
@@ -702,7 +740,9 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
         speed: SpeedIntegrator::resume(last_speed),
         events: 0,
         mqtt,
+        journal_writable: true,
     };
+    d.journal_health();
     d.journal.append(&json!({
         "type": "start",
         "pid": std::process::id(),
@@ -757,6 +797,7 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
         if let Err(e) = d.journal.tick() {
             break Err(e);
         }
+        d.journal_health();
         if last_watchdog.elapsed() >= Duration::from_secs(1) {
             let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
             last_watchdog = Instant::now();
@@ -770,7 +811,8 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
             }
         }
         if last_log.elapsed() >= Duration::from_secs(d.cfg.log.counters_interval_s) {
-            let now = Counters::from_stats(&input.stats(), &d.mapper.stats(), d.events);
+            let now = Counters::from_stats(&input.stats(), &d.mapper.stats(), d.events)
+                .with_journal(&d.journal.health());
             log(format_args!(
                 "last {} s: {}",
                 d.cfg.log.counters_interval_s,
@@ -807,7 +849,8 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
     if let Some(e) = d.stage.finish() {
         d.on_event(e)?;
     }
-    let totals = Counters::from_stats(&input.stats(), &d.mapper.stats(), d.events);
+    let totals = Counters::from_stats(&input.stats(), &d.mapper.stats(), d.events)
+        .with_journal(&d.journal.health());
     let rejections = d.stage.rejections();
     let mqtt = d
         .mqtt
@@ -824,7 +867,19 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
         "mqtt": mqtt,
     }))?;
     d.journal.sync()?;
-    d.save_state()?;
+    d.journal_health();
+    let h = d.journal.health();
+    if h.backlog_records > 0 {
+        log(format_args!(
+            "journal: {} record(s) ({} bytes) still refused by the disk at exit ({}): they are lost",
+            h.backlog_records,
+            h.backlog_bytes,
+            h.error.as_deref().unwrap_or("?")
+        ));
+    }
+    if let Err(e) = d.save_state() {
+        log(format_args!("state: {e:#}; not saved at exit"));
+    }
     if let Some(r) = rejections.filter(|r| r.counts.worth_reporting()) {
         log(format_args!("braking: {}", r.text));
     }
