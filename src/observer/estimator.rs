@@ -94,6 +94,13 @@ pub struct EstimatorConfig {
     /// Method "linear": the goodness-of-fit score ([`super::fit`]) above which the report
     /// says the model does not fit the vehicle (its interval is not to be trusted).
     pub fit_z_max: f64,
+    /// How much more the vehicle's steering-wheel signal moves than the table's vehicle's for
+    /// the same wheel motion (the steering-wheel transfer, MODEL.md §8 and §15): the braking
+    /// and cruise features are divided by it before they meet the table. 1 = the table's
+    /// vehicle. For a car whose transfer is known to differ (its steering ratio against the
+    /// table's); the angle features alone cannot tell it from a clearance change, not even over
+    /// a fleet (docs/ACCURACY.md, "self-calibration"), so nothing estimates it.
+    pub transfer_gain: f64,
 }
 
 impl Default for EstimatorConfig {
@@ -119,6 +126,7 @@ impl Default for EstimatorConfig {
             prior_range_mm: None,
             prior_tail: 0.0,
             fit_z_max: FIT_Z_MAX,
+            transfer_gain: 1.0,
         }
     }
 }
@@ -189,6 +197,12 @@ impl EstimatorConfig {
         }
         non_negative("prior_tail", self.prior_tail)?;
         positive("fit_z_max", self.fit_z_max)?;
+        if !(self.transfer_gain.is_finite() && (0.05..=20.0).contains(&self.transfer_gain)) {
+            anyhow::bail!(
+                "estimator.transfer_gain: must be in [0.05, 20] (got {})",
+                self.transfer_gain
+            );
+        }
         for (key, v) in [
             ("grid_refine", self.grid_refine),
             ("damping_grid", self.damping_grid),
@@ -448,10 +462,27 @@ impl Estimator {
             .last_odometer_m
             .map(|prev| (odometer_m - prev) / 1000.0);
         self.last_odometer_m = Some(odometer_m);
+        let g = self.cfg.transfer_gain;
+        let cruise_rms_deg = cruise_rms_deg.filter(|_| self.cfg.cruise && table.cruise);
+        let ln_jac = if g == 1.0 {
+            0.0
+        } else {
+            use super::features::{ln_jacobian_gain as lj, Z_FLOOR_DEG as F};
+            let mut j = 0.0;
+            if self.use_rms {
+                j += lj(rms_deg, F[0], g);
+            }
+            if self.use_peak {
+                j += lj(peak_deg, F[1], g);
+            }
+            if let Some(c) = cruise_rms_deg {
+                j += lj(c, F[0], g);
+            }
+            j
+        };
+        let (rms_deg, peak_deg) = (rms_deg / g, peak_deg / g);
         let z = super::features::z(rms_deg, peak_deg);
-        let zc = cruise_rms_deg
-            .filter(|_| self.cfg.cruise && table.cruise)
-            .map(super::features::z_cruise);
+        let zc = cruise_rms_deg.map(|c| super::features::z_cruise(c / g));
         if let Some(lp) = self.linear.as_mut() {
             if let Some(d) = dist_km {
                 lp.forget(d);
@@ -459,6 +490,7 @@ impl Estimator {
             let mask = [self.use_rms, self.use_peak, zc.is_some()];
             let z3 = [z[0], z[1], zc.unwrap_or(0.0)];
             lp.update(z3, &mask, v0_kmh, decel_g);
+            lp.add_ln_jacobian(ln_jac);
             lp.probabilities_into(&mut self.marg, &self.log_prior);
             self.events_used += 1;
             return;
@@ -542,6 +574,12 @@ impl Estimator {
     /// grid point, and its degrees of freedom ([`super::marginal::LinearPosterior::fit`]).
     pub fn fit(&self) -> Option<(f64, f64)> {
         self.linear.as_ref()?.fit()
+    }
+
+    /// Method "linear": ln of the events' marginal likelihood under the table's model,
+    /// `[with the evidence power, without]` ([`super::marginal::LinearPosterior::ln_evidence`]).
+    pub fn ln_evidence(&self) -> Option<[f64; 2]> {
+        self.linear.as_ref()?.ln_evidence()
     }
 
     /// Method "linear" with `phase = "either"`: the posterior probability that the wheels'

@@ -223,6 +223,16 @@ pub fn z(rms_deg: f64, peak_deg: f64) -> [f64; 2] {
     ]
 }
 
+/// ln of the Jacobian dz_table/dz_measured of one feature (a braking RMS or peak, or the cruise
+/// RMS, `x_deg` as measured, `floor_deg` its entry of [`Z_FLOOR_DEG`]) when the table is asked
+/// about `x / gain` ([`super::estimator::EstimatorConfig::transfer_gain`]): the factor that
+/// keeps the events' likelihood a density of what was measured, so that likelihoods under
+/// different gains can be compared. 0 at gain 1 and for signals far above the floor.
+pub fn ln_jacobian_gain(x_deg: f64, floor_deg: f64, gain: f64) -> f64 {
+    let (x2, f2) = (x_deg * x_deg, floor_deg * floor_deg);
+    (x2 + f2).ln() - (x2 + gain * gain * f2).ln()
+}
+
 /// Power gain of the zero-phase filter (|H|⁴ of the single pass) integrated over 0..fs/2,
 /// as a fraction of fs/2: the share of white noise's variance that passes.
 pub fn enbw_fraction(bp: &Bandpass) -> f64 {

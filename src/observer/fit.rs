@@ -30,6 +30,14 @@ pub struct ModelFit {
     pub z: f64,
     /// False when `z` exceeds the configured limit with at least [`MIN_DOF`] degrees of freedom.
     pub fits: bool,
+    /// ln of the events' marginal likelihood under the table's model (clearance prior and
+    /// nuisances integrated out), with the evidence power: what a fleet-level fit of a
+    /// per-car-model correction adds up over vehicles (`shimmy fleet-gain`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ln_evidence: Option<f64>,
+    /// The same without the evidence power.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ln_evidence_untempered: Option<f64>,
 }
 
 impl ModelFit {
@@ -42,6 +50,8 @@ impl ModelFit {
             dof,
             z,
             fits: !(dof >= MIN_DOF && z > z_max),
+            ln_evidence: None,
+            ln_evidence_untempered: None,
         }
     }
 }

@@ -169,6 +169,8 @@ pub struct LinearPosterior {
     basis_e_mean: Vec<Basis>,
     /// Scratch: ln p(z | c_g, point) of one clearance.
     scratch: Vec<f64>,
+    /// Scratch: ln p(events | c_g) + ln prior(c_g), without the evidence power, per grid point.
+    scratch_raw: Vec<f64>,
     /// Λ₀ and ln det Λ₀ per clearance grid point (η block T_c⁻¹ / k²).
     prior: Vec<(MatX, f64)>,
     inflation2: f64,
@@ -184,6 +186,13 @@ pub struct LinearPosterior {
     /// Smallest deviance over the clearances and grid points, after the last
     /// [`Self::probabilities_into`].
     min_deviance: f64,
+    /// ln of the events' marginal likelihood under the table's model (over the clearance prior
+    /// and the nuisances), with and without the evidence power, after the last
+    /// [`Self::probabilities_into`].
+    ln_evidence: [f64; 2],
+    /// Σ over the events of ln dz_table/dz_measured (a transfer gain other than 1), faded
+    /// with the evidence.
+    ln_jacobian: f64,
 }
 
 /// Inverse and ln det of the masked block of `m` (unused features: zero rows and columns).
@@ -344,9 +353,12 @@ impl LinearPosterior {
             half_life_km: cfg.evidence_half_life_km,
             power: cfg.evidence_power,
             share_v: vec![0.0; ng],
+            scratch_raw: vec![0.0; ng],
             p_vehicle: f64::NAN,
             n_obs: 0.0,
             min_deviance: f64::NAN,
+            ln_evidence: [f64::NAN; 2],
+            ln_jacobian: 0.0,
         })
     }
 
@@ -369,6 +381,13 @@ impl LinearPosterior {
             st.ld *= f;
         }
         self.n_obs *= f;
+        self.ln_jacobian *= f;
+    }
+
+    /// Adds one event's ln dz_table/dz_measured ([`super::features::ln_jacobian_gain`]) to
+    /// the evidence.
+    pub fn add_ln_jacobian(&mut self, ln_jac: f64) {
+        self.ln_jacobian += ln_jac;
     }
 
     /// Adds one event: features `z` (ln RMS, ln peak, cruise; masked ones ignored) at initial
@@ -435,6 +454,7 @@ impl LinearPosterior {
     /// (up to a constant; not raised to the evidence power).
     pub fn probabilities_into(&mut self, out: &mut [f64], log_prior: &[f64]) {
         let mut mx = f64::NEG_INFINITY;
+        let mut mx_raw = f64::NEG_INFINITY;
         let mut min_dev = f64::INFINITY;
         let (nv, ne) = (self.points_v.len(), self.points_e.len());
         for (g, o) in out.iter_mut().enumerate().take(self.pos.len()) {
@@ -470,7 +490,35 @@ impl LinearPosterior {
             };
             *o = self.power * l + log_prior[g];
             mx = mx.max(*o);
+            self.scratch_raw[g] = l + log_prior[g];
+            mx_raw = mx_raw.max(self.scratch_raw[g]);
         }
+        // The prior's normaliser, so that the evidence is comparable between settings that
+        // change the likelihood only (e.g. the transfer gain).
+        let lp_max = log_prior.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let ln_prior_sum = lp_max
+            + log_prior
+                .iter()
+                .map(|l| (l - lp_max).exp())
+                .sum::<f64>()
+                .ln();
+        let n = self.pos.len().min(out.len());
+        self.ln_evidence = if mx.is_finite() && mx_raw.is_finite() {
+            [
+                mx + out[..n].iter().map(|o| (o - mx).exp()).sum::<f64>().ln() - ln_prior_sum
+                    + self.power * self.ln_jacobian,
+                self.ln_jacobian
+                    + mx_raw
+                    + self.scratch_raw[..n]
+                        .iter()
+                        .map(|o| (o - mx_raw).exp())
+                        .sum::<f64>()
+                        .ln()
+                    - ln_prior_sum,
+            ]
+        } else {
+            [f64::NAN; 2]
+        };
         self.min_deviance = if min_dev.is_finite() {
             min_dev
         } else {
@@ -503,6 +551,13 @@ impl LinearPosterior {
     pub fn fit(&self) -> Option<(f64, f64)> {
         (self.n_obs > 0.0 && self.min_deviance.is_finite())
             .then_some((self.min_deviance, self.n_obs))
+    }
+
+    /// ln of the events' marginal likelihood under the table's model (the clearance prior
+    /// normalised), `[with the evidence power, without]`, after the last
+    /// [`Self::probabilities_into`]; `None` before any event.
+    pub fn ln_evidence(&self) -> Option<[f64; 2]> {
+        (self.n_obs > 0.0 && self.ln_evidence[0].is_finite()).then_some(self.ln_evidence)
     }
 
     /// Posterior probability that the wheels' unbalance phase difference was the same in all

@@ -492,7 +492,10 @@ impl Observer {
         let z_max = self.cfg.estimator.fit_z_max;
         let model_fit = self.estimator.as_ref().and_then(|e| {
             let (dev, dof) = e.fit()?;
-            Some(fit::ModelFit::new(dev, dof, z_max))
+            let mut f = fit::ModelFit::new(dev, dof, z_max);
+            f.ln_evidence = e.ln_evidence().map(|l| l[0]);
+            f.ln_evidence_untempered = e.ln_evidence().map(|l| l[1]);
+            Some(f)
         });
         let verdict = match model_fit {
             Some(f) if !f.fits => format!(
