@@ -20,6 +20,7 @@
 //! | the maintenance alert rules and their settings | [`alerts`] | [`monitor`] |
 //! | the monitor pipeline (event stage → estimate → alert rules, for shimmyd and `shimmy estimate`) | [`pipeline`] | [`alerts`], [`monitor`], [`observer`] |
 //! | the crash-safe journal | [`journal`] | nothing |
+//! | the Parquet data lake (decoded signals, events, estimates, alerts; feature `lake`) | `lake` | [`pipeline`] and below |
 //! | applications: shimmyd, the `shimmy` commands, reports, doctor | [`daemon`], [`cli`], [`report`], [`doctor`] | everything below |
 //!
 //! Units are SI inside; degrees, km/h, mm and bar appear only at the edges and names say so.
@@ -32,6 +33,8 @@ pub mod dbc;
 pub mod doctor;
 pub mod events;
 pub mod journal;
+#[cfg(feature = "lake")]
+pub mod lake;
 pub mod model;
 pub mod monitor;
 pub mod observer;

@@ -31,6 +31,7 @@ const LAYERS: &[(&str, &[&str])] = &[
     ("the alert rules", &["alerts"]),
     ("the monitor pipeline", &["pipeline"]),
     ("the journal", &["journal"]),
+    ("the Parquet data lake", &["lake"]),
     (
         "applications: daemon, commands, reports",
         &["daemon", "cli", "report", "doctor"],

@@ -19,6 +19,9 @@ enum Cmd {
     Convert(shimmy::cli::convert::Args),
     /// Estimate steering-joint clearance from one vehicle's CAN logs (braking events, model table).
     Estimate(shimmy::cli::estimate::Args),
+    /// Export one vehicle's CAN logs to a Parquet data lake (signals, events, estimates, alerts).
+    #[cfg(feature = "lake")]
+    Export(shimmy::cli::export::Args),
     /// Name the vehicle profile a CAN log comes from (IDs, lengths, rates, checksums), with evidence.
     Identify(shimmy::cli::identify::Args),
     /// Check a signal mapping against a car's logs (signal consistency, braking) and name what to change.
@@ -38,6 +41,8 @@ fn main() {
         Cmd::Decode(a) => shimmy::cli::decode::run(a),
         Cmd::Convert(a) => shimmy::cli::convert::run(a),
         Cmd::Estimate(a) => shimmy::cli::estimate::run(a),
+        #[cfg(feature = "lake")]
+        Cmd::Export(a) => shimmy::cli::export::run(a),
         Cmd::Identify(a) => shimmy::cli::identify::run(a),
         Cmd::Doctor(a) => shimmy::cli::doctor::run(a),
         Cmd::Calibrate(a) => shimmy::cli::calibrate::run(a),

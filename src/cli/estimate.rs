@@ -15,18 +15,14 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context};
 
 use crate::alerts::Alert;
-use crate::dbc::Database;
-use crate::events::Sample;
 use crate::model::VehicleParams;
 use crate::observer::table::{vehicle_hash, ResponseTable};
 use crate::observer::{ObserverConfig, Report};
-use crate::pipeline::{detector_sample, Monitor, ObserverStage};
+use crate::pipeline::feeder::Offline;
+pub use crate::pipeline::feeder::{resolve_dbc, Feeder, RunStats};
 use crate::profile::Profile;
-use crate::signals::mapping::MappingConfig;
-use crate::signals::{Mapper, Outcome, Update};
 use crate::source::log::LogReader;
-use crate::source::{CanSource, SourceStats};
-use crate::wire::Frame;
+use crate::source::CanSource;
 
 /// Estimate steering-joint clearance from one vehicle's CAN logs.
 ///
@@ -112,23 +108,6 @@ pub struct Args {
 
 pub use super::TextOrJson as Format;
 
-/// Finds the DBC a mapping names (see [`crate::profile::resolve_dbc`] for where it looks).
-pub fn resolve_dbc(mapping_path: &Path, mapping: &MappingConfig) -> anyhow::Result<PathBuf> {
-    let Some(name) = mapping.dbc.as_deref() else {
-        bail!(
-            "mapping {} names no `dbc`; pass --dbc FILE",
-            mapping_path.display()
-        );
-    };
-    let dir = mapping_path.parent().unwrap_or(Path::new("."));
-    crate::profile::resolve_dbc(dir, name).with_context(|| {
-        format!(
-            "the DBC named by mapping {}; pass --dbc FILE",
-            mapping_path.display()
-        )
-    })
-}
-
 /// Seconds of the logs' traffic `shimmy estimate` fingerprints when no car is given.
 pub const IDENTIFY_SECONDS: f64 = 10.0;
 
@@ -162,85 +141,6 @@ pub fn load_vehicle(path: Option<&Path>) -> anyhow::Result<VehicleParams> {
     }
 }
 
-/// Counters of one run over the logs.
-#[derive(Clone, Debug, Default, serde::Serialize)]
-pub struct RunStats {
-    pub frames: u64,
-    pub mapped_frames: u64,
-    pub rejected_frames: u64,
-    pub log: SourceStats,
-}
-
-/// Turns mapped frames into detector samples.
-pub struct Feeder {
-    mapper: Mapper,
-    steer_msg: Option<usize>,
-    brake_on_pa: f64,
-    pub stats: RunStats,
-}
-
-impl Feeder {
-    pub fn new(
-        db: &Database,
-        mapping: &MappingConfig,
-        cfg: &ObserverConfig,
-    ) -> anyhow::Result<Feeder> {
-        let mapper = Mapper::new(db, mapping)?;
-        let steer_msg = mapper
-            .stats()
-            .iter()
-            .position(|m| m.name == mapping.steer_angle.message);
-        Ok(Feeder {
-            mapper,
-            steer_msg,
-            brake_on_pa: cfg.events.brake_on_bar * 1e5,
-            stats: RunStats::default(),
-        })
-    }
-
-    /// Reads a whole source, handing each sample it makes to `sink`.
-    pub fn feed_source(
-        &mut self,
-        src: &mut dyn CanSource,
-        mut sink: impl FnMut(&Sample),
-    ) -> anyhow::Result<()> {
-        while let Some(f) = src.next_frame().context("reading log")? {
-            if let Some((s, _)) = self.sample(&f) {
-                sink(&s);
-            }
-        }
-        let st = src.stats();
-        self.stats.log.frames += st.frames;
-        self.stats.log.malformed += st.malformed;
-        self.stats.log.skipped += st.skipped;
-        self.stats.log.error_frames += st.error_frames;
-        self.stats.log.backwards_timestamps += st.backwards_timestamps;
-        self.stats.log.dropped += st.dropped;
-        Ok(())
-    }
-}
-
-impl Feeder {
-    /// One frame through the mapper: the detector sample it makes and the mapper's update, or
-    /// `None` when the frame belongs to no mapped message. Counts the frame. Allocates nothing.
-    pub fn sample(&mut self, f: &Frame) -> Option<(Sample, Update)> {
-        self.stats.frames += 1;
-        let u = self.mapper.on_frame(f)?;
-        self.stats.mapped_frames += 1;
-        if matches!(u.outcome, Outcome::Rejected(_)) {
-            self.stats.rejected_frames += 1;
-        }
-        let snap = self.mapper.snapshot(f.t_ns);
-        let s = detector_sample(&u, &snap, self.steer_msg, self.brake_on_pa);
-        Some((s, u))
-    }
-
-    /// The signal mapper (its per-message counters, its latest snapshot).
-    pub fn mapper(&self) -> &Mapper {
-        &self.mapper
-    }
-}
-
 /// What `shimmy estimate` answers: the observer's report and the alerts standing at the end of
 /// the logs.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
@@ -270,25 +170,11 @@ pub fn estimate_files(
     cfg: ObserverConfig,
     logs: &[PathBuf],
 ) -> anyhow::Result<(Estimation, RunStats)> {
-    let mapping = MappingConfig::from_toml_file(mapping_path)
-        .with_context(|| format!("mapping {}", mapping_path.display()))?;
-    let dbc_path = match dbc {
-        Some(p) => p.to_path_buf(),
-        None => resolve_dbc(mapping_path, &mapping)?,
-    };
-    let (db, _report) = Database::load(&dbc_path)?;
-    let mut feeder = Feeder::new(&db, &mapping, &cfg).with_context(|| {
-        format!(
-            "mapping {} against {}",
-            mapping_path.display(),
-            dbc_path.display()
-        )
-    })?;
-    for w in feeder.mapper().warnings() {
-        eprintln!("shimmy estimate: mapping: {w}");
-    }
-    let rules = cfg.alerts.clone();
-    let mut monitor = Monitor::new(ObserverStage::new(&cfg, table)?, rules);
+    let Offline {
+        mut feeder,
+        mut monitor,
+        ..
+    } = Offline::open(mapping_path, dbc, table, cfg, "shimmy estimate")?;
     for log in logs {
         let mut src =
             LogReader::open(log).with_context(|| format!("cannot open log {}", log.display()))?;

@@ -6,6 +6,8 @@ pub mod convert;
 pub mod decode;
 pub mod doctor;
 pub mod estimate;
+#[cfg(feature = "lake")]
+pub mod export;
 pub mod identify;
 pub mod report;
 pub mod reproduce;

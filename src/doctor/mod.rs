@@ -21,13 +21,13 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use serde::Serialize;
 
-use crate::cli::estimate::Feeder;
 use crate::dbc::Database;
 use crate::events::{EventConfig, IgnoredApplication, Unused};
 use crate::model::VehicleParams;
 use crate::observer::rejections::{describe_unused, Rejections};
 use crate::observer::table::ResponseTable;
 use crate::observer::{EventOut, Observer, ObserverConfig};
+use crate::pipeline::feeder::Feeder;
 use crate::signals::mapping::MappingConfig;
 use crate::signals::{MessageStats, Outcome};
 use crate::source::log::LogReader;

@@ -10,16 +10,18 @@
 //! | [`finish_event`] | the step after each finished event: the event stamped with the odometer, the estimate after it, the alert rules run on both |
 //! | [`Monitor`] | the three above wired together for an offline run (`shimmy estimate`), ending with the alerts standing |
 //! | [`detector_sample`] | one mapped frame's signals as the detector's [`Sample`]: the brake rule, and which rejections mark the steering invalid |
+//! | [`feeder`] | frames through the signal mapper into samples ([`feeder::Feeder`]), and the offline pipeline opened from a mapping, DBC, table and settings ([`feeder::Offline`]) |
 //!
 //! shimmyd uses [`SpeedIntegrator`] and [`finish_event`] directly, because it keeps the odometer
 //! and the alert book in its persisted state; `shimmy estimate` uses [`Monitor`], which holds
 //! them for one run. Both therefore raise, update and clear alerts after the same events with
 //! the same estimates.
 //!
-//! What it is not: frame decoding or signal mapping (the callers turn frames into [`Sample`]s),
+//! What it is not: frame decoding or signal mapping (the mapper's; [`feeder`] only runs it),
 //! detection or estimation (the observer's), the alert rules themselves ([`crate::alerts`]) or
 //! any output (journal, state file, MQTT, JSON report).
 
+pub mod feeder;
 pub mod observer_stage;
 
 use crate::alerts::{Alert, AlertBook, AlertsSection, Transition};

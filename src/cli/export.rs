@@ -1,0 +1,178 @@
+//! `shimmy export`: one vehicle's CAN logs into a Parquet data lake (decoded signals in the CSS
+//! Electronics layout, and the monitor's events, estimates and alerts), each log on its own:
+//! a log that fails is reported and the others go on.
+//!
+//! This module is the command line and the per-log error report; the lake itself (layout,
+//! naming, schemas, the pipeline run) is [`crate::lake`].
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context};
+
+use crate::lake::{run_sha256, sha256_bytes, sha256_file, Exporter, Inputs};
+use crate::observer::ObserverConfig;
+use crate::pipeline::feeder::Offline;
+use crate::profile::Profile;
+
+/// Export one vehicle's CAN logs to a Parquet data lake.
+///
+/// Reads each LOG in turn (candump -L, Vector ASC, BLF or ASAM MDF 4) and writes, under LAKE:
+///   <VEHICLE>/<message>/<yyyy>/<mm>/<dd>/*.parquet
+///       every frame the profile's DBC defines, one file set per CAN message: a column t
+///       (timestamp, µs, UTC) and one column per signal (physical value, Float64; value-table
+///       entries stay numbers; null when the frame does not carry the signal), the values
+///       `shimmy decode` prints (CSS Electronics' data-lake layout, device = the vehicle ID);
+///   events/vehicle=<VEHICLE>/date=<yyyy-mm-dd>/*.parquet     finished braking events
+///   estimates/vehicle=<VEHICLE>/date=<yyyy-mm-dd>/*.parquet  the clearance estimate after each
+///   alerts/vehicle=<VEHICLE>/date=<yyyy-mm-dd>/*.parquet     alert transitions (raised, updated,
+///                                                            cleared)
+/// The monitor's tables come from the same pipeline as `shimmy estimate` over the same logs in
+/// the same order (every row carries the model version and the sha256 of the log, the run, the
+/// response table and the DBC). docs/FLEET.md lists every column.
+///
+/// Appending and rerunning: file names derive from the content of the inputs (the log's sha256
+/// for signals; the run's hash, over every log, the DBC, mapping, table and settings, for the
+/// monitor's tables) and the bytes written are reproducible, so exporting the same logs again
+/// rewrites the same files and adds none: a failed or interrupted run is resumed by running it
+/// again. Files are written under hidden temporary names and renamed when complete.
+///
+/// Dates: the UTC date of each frame's timestamp (of the event's end for the monitor's tables).
+/// A log whose timestamps count from its start rather than from 1970 (e.g. candump written by a
+/// simulator from t = 0) lands on 1970-01-01; shift it before export if it has a known start.
+///
+/// A log that cannot be read, holds no CAN frame, or carries none of the profile's mapped
+/// messages (another car) is reported on stderr with the reason; the others are exported, and
+/// the exit status is 1 if any failed. Progress goes to stderr on a terminal.
+///
+/// Examples:
+///   shimmy export --profile toyota_rav4 --vehicle rav4-0042 --out /data/lake drive*.log
+#[derive(clap::Args, Debug)]
+#[command(verbatim_doc_comment)]
+pub struct Args {
+    /// Vehicle profile (a name under config/vehicles, an alias, or a profile folder): its DBC,
+    /// mapping, chassis and response table.
+    #[arg(long, value_name = "NAME")]
+    pub profile: String,
+
+    /// The vehicle's ID: the lake's device folder and `vehicle=` partition (A-Z a-z 0-9 _ . -).
+    #[arg(long, value_name = "ID")]
+    pub vehicle: String,
+
+    /// The lake's root folder (created if missing; existing files of other inputs are kept).
+    #[arg(long, value_name = "LAKE")]
+    pub out: PathBuf,
+
+    /// The monitor's settings (TOML, as config/observer.toml); default: built-in defaults.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+
+    /// The vehicle's logs, in time order.
+    #[arg(value_name = "LOG", required = true)]
+    pub logs: Vec<PathBuf>,
+}
+
+const TOOL: &str = "shimmy export";
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    crate::lake::check_vehicle_id(&args.vehicle)?;
+    let cfg = match &args.config {
+        Some(p) => ObserverConfig::load(p)?,
+        None => ObserverConfig::default(),
+    };
+    let profile = Profile::load(&args.profile)?;
+    let table = profile.load_table()?;
+    let table_sha256 = match (&table, &profile.table_path) {
+        (Some(_), Some(p)) => Some(sha256_file(p)?),
+        _ => {
+            eprintln!(
+                "{TOOL}: profile {} has no response table: events only",
+                profile.name
+            );
+            None
+        }
+    };
+    let settings_json = serde_json::to_vec(&cfg).context("serialising the monitor's settings")?;
+    let inputs = Inputs {
+        vehicle: args.vehicle.clone(),
+        dbc_sha256: sha256_file(&profile.dbc_path)?,
+        table_sha256,
+        mapping_sha256: sha256_file(&profile.mapping_path)?,
+        settings_sha256: sha256_bytes(&settings_json),
+    };
+    let pipe = Offline::open(
+        &profile.mapping_path,
+        Some(&profile.dbc_path),
+        table,
+        cfg,
+        TOOL,
+    )?;
+
+    // Every log's hash first: the monitor's files are named by the whole run.
+    let mut failed: Vec<(PathBuf, String)> = Vec::new();
+    let mut hashed = Vec::new();
+    for log in &args.logs {
+        match sha256_file(log) {
+            Ok(h) => hashed.push((log.clone(), h)),
+            Err(e) => failed.push((log.clone(), format!("{e:#}"))),
+        }
+    }
+    let shas: Vec<String> = hashed.iter().map(|(_, h)| h.clone()).collect();
+    let run = run_sha256(&inputs, &shas);
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create the lake {}", args.out.display()))?;
+    let mut ex = Exporter::new(args.out.clone(), inputs, run.clone(), pipe)?;
+
+    let bar = indicatif::ProgressBar::new(hashed.len() as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} logs {msg}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar.set_prefix(TOOL);
+    let (mut files, mut frames, mut ok) = (0usize, 0u64, 0usize);
+    for (i, (log, sha)) in hashed.iter().enumerate() {
+        let name = log.display().to_string();
+        let res = ex.export_log(i, log, sha, &mut |n| {
+            bar.set_message(format!("{name}: {n} frames"));
+        });
+        bar.inc(1);
+        match res {
+            Ok(done) => {
+                for s in &done.skips {
+                    bar.suspend(|| eprintln!("{TOOL}: skipped {}: {}", s.location, s.reason));
+                }
+                files += done.files.len();
+                frames += done.frames;
+                ok += 1;
+            }
+            Err(e) => {
+                bar.suspend(|| eprintln!("{TOOL}: FAILED {}: {e:#}", log.display()));
+                failed.push((log.clone(), format!("{e:#}")));
+            }
+        }
+    }
+    let (last, pipe) = ex.finish()?;
+    files += last.len();
+    bar.finish_and_clear();
+    let st = &pipe.feeder.stats;
+    println!(
+        "{TOOL}: {ok} of {} logs exported to {} ({frames} frames, {} mapped, {files} files \
+         written; run {}); {} braking events, {} alerts standing",
+        args.logs.len(),
+        args.out.display(),
+        st.mapped_frames,
+        &run[..16],
+        pipe.monitor.stage().observer().report().events.len(),
+        pipe.monitor.standing().len(),
+    );
+    if !failed.is_empty() {
+        for (log, why) in &failed {
+            eprintln!("{TOOL}: failed: {}: {why}", log.display());
+        }
+        bail!(
+            "{} of {} logs failed (listed above)",
+            failed.len(),
+            args.logs.len()
+        );
+    }
+    Ok(())
+}

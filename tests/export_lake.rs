@@ -1,0 +1,473 @@
+//! `shimmy export`: a firmware-sim drive and the real RAV4 drive exported to a Parquet lake and
+//! read back with the parquet crate's reader. Checked against the other commands on the same
+//! logs: every decoded value equals `shimmy decode`'s, the events, the last estimate and the
+//! alerts standing equal `shimmy estimate --json`'s; the partition layout and names; the
+//! provenance columns (sha256 of the DBC and the table); a rerun rewrites byte-identical files
+//! and adds none; a corrupt log is reported and the others are still exported.
+//!
+//! The RAV4 drive comes from the shared data (SHIMMY_DATA_DIR); without it that test skips,
+//! except under CI=true where it fails.
+
+mod e2e_common;
+
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use arrow_array::cast::AsArray;
+use arrow_array::types::{Float64Type, TimestampMicrosecondType, UInt32Type, UInt64Type};
+use arrow_array::{Array, RecordBatch};
+use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+use serde_json::Value;
+use sha2::{Digest, Sha256};
+use shimmy::profile::Profile;
+
+fn shimmy(args: &[&std::ffi::OsStr]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_shimmy"))
+        .current_dir(e2e_common::workspace())
+        .args(args)
+        .output()
+        .expect("run shimmy")
+}
+
+fn export(profile: &str, vehicle: &str, lake: &Path, logs: &[&Path]) -> Output {
+    let mut a: Vec<&std::ffi::OsStr> = vec![
+        "export".as_ref(),
+        "--profile".as_ref(),
+        profile.as_ref(),
+        "--vehicle".as_ref(),
+        vehicle.as_ref(),
+        "--out".as_ref(),
+        lake.as_os_str(),
+    ];
+    a.extend(logs.iter().map(|l| l.as_os_str()));
+    shimmy(&a)
+}
+
+fn sha256_hex(path: &Path) -> String {
+    let d = Sha256::digest(std::fs::read(path).unwrap());
+    d.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Every file under `dir` (relative path → bytes).
+fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    let mut out = BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.insert(
+                    p.strip_prefix(dir).unwrap().to_path_buf(),
+                    std::fs::read(&p).unwrap(),
+                );
+            }
+        }
+    }
+    out
+}
+
+fn read_parquet(path: &Path) -> Vec<RecordBatch> {
+    ParquetRecordBatchReaderBuilder::try_new(File::open(path).unwrap())
+        .unwrap()
+        .build()
+        .unwrap()
+        .map(|b| b.unwrap())
+        .collect()
+}
+
+/// All rows of one table's files (in file-name order) as batches.
+fn read_all(lake: &Path, files: &BTreeMap<PathBuf, Vec<u8>>, prefix: &str) -> Vec<RecordBatch> {
+    files
+        .keys()
+        .filter(|p| p.starts_with(prefix))
+        .flat_map(|p| read_parquet(&lake.join(p)))
+        .collect()
+}
+
+fn hex_name(s: &str, len: usize) -> bool {
+    s.len() == len
+        && s.bytes()
+            .all(|b| b.is_ascii_hexdigit() && !b.is_ascii_uppercase())
+}
+
+/// Checks every file's path against the documented layout; returns the signal files' dates
+/// (yyyy/mm/dd) and the tables' dates (yyyy-mm-dd).
+fn check_layout(files: &BTreeMap<PathBuf, Vec<u8>>, vehicle: &str) -> (Vec<String>, Vec<String>) {
+    let (mut sig_dates, mut table_dates) = (Vec::new(), Vec::new());
+    for p in files.keys() {
+        let parts: Vec<&str> = p.iter().map(|c| c.to_str().unwrap()).collect();
+        let name = parts.last().unwrap();
+        assert!(!name.starts_with('.'), "a temporary file was left: {p:?}");
+        let stem = name.strip_suffix(".parquet").expect("only parquet files");
+        if ["events", "estimates", "alerts"].contains(&parts[0]) {
+            assert_eq!(parts.len(), 4, "{p:?}");
+            assert_eq!(parts[1], format!("vehicle={vehicle}"));
+            let date = parts[2].strip_prefix("date=").expect("date= partition");
+            assert_eq!(date.len(), 10, "{p:?}");
+            let (run, idx) = stem.split_once('-').unwrap();
+            assert!(hex_name(run, 16) && idx.len() == 4, "{p:?}");
+            table_dates.push(date.to_string());
+        } else {
+            assert_eq!(parts.len(), 6, "{p:?}: <device>/<message>/yyyy/mm/dd/file");
+            assert_eq!(parts[0], vehicle);
+            let f: Vec<&str> = stem.split('-').collect();
+            assert!(
+                f.len() == 3 && hex_name(f[0], 16) && hex_name(f[1], 8) && f[2].len() == 3,
+                "{p:?}"
+            );
+            sig_dates.push(format!("{}/{}/{}", parts[2], parts[3], parts[4]));
+        }
+    }
+    sig_dates.sort();
+    sig_dates.dedup();
+    table_dates.sort();
+    table_dates.dedup();
+    (sig_dates, table_dates)
+}
+
+fn f64s(b: &RecordBatch, name: &str) -> Vec<Option<f64>> {
+    let c = b
+        .column_by_name(name)
+        .unwrap_or_else(|| panic!("column {name}"));
+    let a = c.as_primitive::<Float64Type>();
+    (0..a.len())
+        .map(|i| (!a.is_null(i)).then(|| a.value(i)))
+        .collect()
+}
+
+fn strs(b: &RecordBatch, name: &str) -> Vec<Option<String>> {
+    let a = b.column_by_name(name).unwrap().as_string::<i32>();
+    (0..a.len())
+        .map(|i| (!a.is_null(i)).then(|| a.value(i).to_string()))
+        .collect()
+}
+
+fn bools(b: &RecordBatch, name: &str) -> Vec<bool> {
+    let a = b.column_by_name(name).unwrap().as_boolean();
+    (0..a.len()).map(|i| a.value(i)).collect()
+}
+
+fn json_f64(v: &Value) -> Option<f64> {
+    v.as_f64()
+}
+
+/// Every decoded frame of `shimmy decode` equals a row of its message's files, in order.
+fn check_signals_equal_decode(
+    lake: &Path,
+    files: &BTreeMap<PathBuf, Vec<u8>>,
+    vehicle: &str,
+    dbc: &Path,
+    log: &Path,
+) -> usize {
+    let out = shimmy(&[
+        "decode".as_ref(),
+        "--dbc".as_ref(),
+        dbc.as_os_str(),
+        log.as_os_str(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // message → [(t µs, signals)]
+    let mut want: HashMap<String, Vec<(i64, serde_json::Map<String, Value>)>> = HashMap::new();
+    for line in out.stdout.split(|&b| b == b'\n').filter(|l| !l.is_empty()) {
+        let v: Value = serde_json::from_slice(line).unwrap();
+        let t = v["t"].as_f64().unwrap();
+        // decode prints µs (or ns) decimals; the lake keeps µs (floor)
+        let text = std::str::from_utf8(line).unwrap();
+        let t_txt = text
+            .split("\"t\": ")
+            .nth(1)
+            .unwrap()
+            .split(',')
+            .next()
+            .unwrap();
+        let (s, frac) = t_txt.split_once('.').unwrap();
+        let us = s.parse::<i64>().unwrap() * 1_000_000 + frac[..6].parse::<i64>().unwrap();
+        assert!((us as f64 * 1e-6 - t).abs() < 1e-3);
+        want.entry(v["msg"].as_str().unwrap().to_string())
+            .or_default()
+            .push((us, v["signals"].as_object().unwrap().clone()));
+    }
+    let mut checked = 0;
+    for (msg, rows) in &want {
+        let batches = read_all(lake, files, &format!("{vehicle}/{msg}/"));
+        let mut got = Vec::new();
+        for b in &batches {
+            let t = b.column(0).as_primitive::<TimestampMicrosecondType>();
+            for i in 0..b.num_rows() {
+                got.push((b, i, t.value(i)));
+            }
+        }
+        assert_eq!(got.len(), rows.len(), "rows of {msg}");
+        for ((b, i, t), (want_t, sigs)) in got.iter().zip(rows) {
+            assert_eq!(t, want_t, "{msg}: timestamp");
+            let schema = b.schema();
+            for (k, field) in schema.fields().iter().enumerate().skip(1) {
+                let col = b.column(k).as_primitive::<Float64Type>();
+                let lake_v = (!col.is_null(*i)).then(|| col.value(*i));
+                match sigs.get(field.name()) {
+                    None => assert_eq!(lake_v, None, "{msg}.{} not decoded", field.name()),
+                    Some(Value::Null) => assert!(lake_v.is_some_and(|v| !v.is_finite())),
+                    Some(v) => assert_eq!(lake_v, json_f64(v), "{msg}.{} at {t}", field.name()),
+                }
+            }
+            assert_eq!(schema.fields().len() - 1 >= sigs.len(), true);
+            checked += 1;
+        }
+    }
+    checked
+}
+
+/// The monitor's tables against `shimmy estimate --json` on the same log and profile.
+fn check_tables_equal_estimate(
+    lake: &Path,
+    files: &BTreeMap<PathBuf, Vec<u8>>,
+    est: &Value,
+    profile: &Profile,
+) {
+    let events = read_all(lake, files, "events");
+    let mut rows: Vec<(
+        f64,
+        f64,
+        f64,
+        f64,
+        Option<f64>,
+        Option<f64>,
+        bool,
+        Option<String>,
+    )> = Vec::new();
+    for b in &events {
+        let (t0, t1, v0, dec, peak, amp, used, why) = (
+            f64s(b, "t_start_s"),
+            f64s(b, "t_end_s"),
+            f64s(b, "v0_kmh"),
+            f64s(b, "decel_g"),
+            f64s(b, "peak_sw_bp_deg"),
+            f64s(b, "sw_amplitude_deg"),
+            bools(b, "used"),
+            strs(b, "unused_reason"),
+        );
+        for i in 0..b.num_rows() {
+            rows.push((
+                t0[i].unwrap(),
+                t1[i].unwrap(),
+                v0[i].unwrap(),
+                dec[i].unwrap(),
+                peak[i],
+                amp[i],
+                used[i],
+                why[i].clone(),
+            ));
+        }
+        // provenance
+        let dbc = sha256_hex(&profile.dbc_path);
+        let table = sha256_hex(profile.table_path.as_ref().unwrap());
+        assert!(strs(b, "dbc_sha256")
+            .iter()
+            .all(|s| s.as_deref() == Some(dbc.as_str())));
+        assert!(strs(b, "table_sha256")
+            .iter()
+            .all(|s| s.as_deref() == Some(table.as_str())));
+        assert!(strs(b, "model_version")
+            .iter()
+            .all(|s| s.as_deref() == Some(concat!("shimmy-monitor ", env!("CARGO_PKG_VERSION")))));
+    }
+    rows.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let want = est["events"].as_array().unwrap();
+    assert_eq!(rows.len(), want.len(), "events");
+    for (r, w) in rows.iter().zip(want) {
+        assert_eq!(r.0, w["t_start"].as_f64().unwrap());
+        assert_eq!(r.1, w["t_end"].as_f64().unwrap());
+        assert_eq!(r.2, w["v0_kmh"].as_f64().unwrap());
+        assert_eq!(r.3, w["decel_g"].as_f64().unwrap());
+        assert_eq!(r.4, w["peak_sw_bp_deg"].as_f64());
+        assert_eq!(r.5, w["sw_amplitude_deg"].as_f64());
+        assert_eq!(r.6, w["used"].as_bool().unwrap());
+        assert_eq!(r.7.as_deref(), w["unused_reason"].as_str());
+    }
+    // The last estimate is the report's.
+    let mut last: Option<(f64, RecordBatch, usize)> = None;
+    for b in read_all(lake, files, "estimates") {
+        for (i, t) in f64s(&b, "t_event_end_s").into_iter().enumerate() {
+            if last.as_ref().is_none_or(|(lt, _, _)| t.unwrap() >= *lt) {
+                last = Some((t.unwrap(), b.clone(), i));
+            }
+        }
+    }
+    if let Some((_, b, i)) = &last {
+        assert_eq!(f64s(b, "clearance_mm")[*i], est["clearance_mm"].as_f64());
+        assert_eq!(
+            f64s(b, "interval_lo_mm")[*i],
+            est["interval_mm"][0].as_f64()
+        );
+        assert_eq!(
+            f64s(b, "interval_hi_mm")[*i],
+            est["interval_mm"][1].as_f64()
+        );
+        assert_eq!(f64s(b, "below_mm")[*i], est["below_mm"].as_f64());
+        assert_eq!(
+            bools(b, "detectable")[*i],
+            est["detectable"].as_bool().unwrap()
+        );
+        assert_eq!(
+            f64s(b, "p_above")[*i],
+            est["p_clearance_above_threshold"].as_f64()
+        );
+        let used = b
+            .column_by_name("events_used")
+            .unwrap()
+            .as_primitive::<UInt32Type>();
+        assert_eq!(used.value(*i) as u64, est["events_used"].as_u64().unwrap());
+    } else {
+        assert!(est["clearance_mm"].is_null() && est["interval_mm"].is_null());
+    }
+    // The alerts standing after the transitions, in order, are estimate's.
+    let mut trans = Vec::new();
+    for b in read_all(lake, files, "alerts") {
+        let ids = b
+            .column_by_name("alert_id")
+            .unwrap()
+            .as_primitive::<UInt64Type>();
+        let upd = b
+            .column_by_name("updates")
+            .unwrap()
+            .as_primitive::<UInt32Type>();
+        let (t, tr, kind, sum, tr_s, tu_s) = (
+            f64s(&b, "t_event_end_s"),
+            strs(&b, "transition"),
+            strs(&b, "kind"),
+            strs(&b, "summary"),
+            f64s(&b, "t_raised_s"),
+            f64s(&b, "t_updated_s"),
+        );
+        for i in 0..b.num_rows() {
+            trans.push((
+                t[i].unwrap(),
+                tr[i].clone().unwrap(),
+                ids.value(i),
+                kind[i].clone().unwrap(),
+                upd.value(i),
+                sum[i].clone().unwrap(),
+                tr_s[i].unwrap(),
+                tu_s[i].unwrap(),
+            ));
+        }
+    }
+    trans.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut open: BTreeMap<u64, Value> = BTreeMap::new();
+    for (_, tr, id, kind, updates, summary, t_raised, t_updated) in trans {
+        if tr == "cleared" {
+            open.remove(&id);
+        } else {
+            open.insert(id, serde_json::json!({"id": id, "kind": kind, "updates": updates, "summary": summary, "t_raised": t_raised, "t_updated": t_updated}));
+        }
+    }
+    let want: Vec<Value> = est["alerts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| serde_json::json!({"id": a["id"], "kind": a["kind"], "updates": a["updates"], "summary": a["summary"], "t_raised": a["t_raised"], "t_updated": a["t_updated"]}))
+        .collect();
+    assert_eq!(
+        open.into_values().collect::<Vec<_>>(),
+        want,
+        "alerts standing"
+    );
+}
+
+fn estimate_json(profile: &str, log: &Path) -> Value {
+    let out = shimmy(&[
+        "estimate".as_ref(),
+        "--profile".as_ref(),
+        profile.as_ref(),
+        log.as_os_str(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+#[test]
+fn a_simulated_drive_exports_what_decode_and_estimate_say_and_a_rerun_changes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = e2e_common::generate("worn_0p2mm", None, dir.path());
+    let corrupt = dir.path().join("corrupt.blf");
+    // A BLF signature followed by garbage, then random-looking bytes.
+    let mut junk = b"LOGG".to_vec();
+    junk.extend((0..4096u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8));
+    std::fs::write(&corrupt, &junk).unwrap();
+    let lake = dir.path().join("lake");
+
+    let out = export("shimmy_reference", "sim-1", &lake, &[&corrupt, &sim.log]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "a failed log makes the exit status 1: {stderr}"
+    );
+    assert!(
+        stderr.contains("FAILED") && stderr.contains("corrupt.blf"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("1 of 2 logs failed"), "{stderr}");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("1 of 2 logs exported"), "{stdout}");
+
+    let files = snapshot(&lake);
+    let (sig_dates, table_dates) = check_layout(&files, "sim-1");
+    // firmware-sim's drives start at 2026-01-01T00:00:00Z.
+    assert_eq!(sig_dates, ["2026/01/01"]);
+    assert_eq!(table_dates, ["2026-01-01"]);
+    for t in ["events", "estimates"] {
+        assert!(files.keys().any(|p| p.starts_with(t)), "no {t} files");
+    }
+
+    let profile = Profile::load("shimmy_reference").unwrap();
+    let n = check_signals_equal_decode(&lake, &files, "sim-1", &profile.dbc_path, &sim.log);
+    assert!(n > 1000, "{n} frames compared");
+    let est = estimate_json("shimmy_reference", &sim.log);
+    assert!(!est["events"].as_array().unwrap().is_empty());
+    check_tables_equal_estimate(&lake, &files, &est, &profile);
+
+    // Rerun: the same files, byte for byte, and no others.
+    let again = export("shimmy_reference", "sim-1", &lake, &[&corrupt, &sim.log]);
+    assert_eq!(again.status.code(), Some(1));
+    assert!(snapshot(&lake) == files, "a rerun changed the lake");
+}
+
+#[test]
+fn the_real_rav4_drive_exports_what_decode_and_estimate_say() {
+    let Some(log) = shimmy::shared_data::require_file(shimmy::shared_data::RAV4_LOG) else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let lake = dir.path().join("lake");
+    let out = export("toyota_rav4", "rav4-1", &lake, &[&log]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let files = snapshot(&lake);
+    let (sig_dates, _) = check_layout(&files, "rav4-1");
+    // comma2k19 logs count seconds from boot: the documented rule puts them on 1970-01-01.
+    assert_eq!(sig_dates, ["1970/01/01"]);
+    let profile = Profile::load("toyota_rav4").unwrap();
+    let n = check_signals_equal_decode(&lake, &files, "rav4-1", &profile.dbc_path, &log);
+    assert!(n > 30_000, "{n} frames compared");
+    let est = estimate_json("toyota_rav4", &log);
+    check_tables_equal_estimate(&lake, &files, &est, &profile);
+    let again = export("toyota_rav4", "rav4-1", &lake, &[&log]);
+    assert!(again.status.success());
+    assert!(snapshot(&lake) == files, "a rerun changed the lake");
+}
