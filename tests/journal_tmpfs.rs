@@ -265,14 +265,7 @@ fn shimmyd_replay(dir: &Path, journal: &Path) -> (bool, String, serde_json::Valu
     std::fs::write(&cfg, text).unwrap();
     let log = e2e_common::workspace().join("tests/fixtures/demo/worn_0p2mm.log");
     let state = dir.join("state");
-    let out = Command::new(e2e_common::shimmyd())
-        .arg("--config")
-        .arg(&cfg)
-        .arg("--replay")
-        .arg(&log)
-        .arg("--fast")
-        .arg("--state-dir")
-        .arg(&state)
+    let out = e2e_common::replay_command(&cfg, &log, Some(&state))
         .output()
         .expect("start shimmyd");
     let st = serde_json::from_slice(&std::fs::read(state.join("state.json")).unwrap()).unwrap();

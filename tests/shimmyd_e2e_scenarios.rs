@@ -19,7 +19,6 @@
 mod e2e_common;
 
 use std::collections::HashMap;
-use std::process::Command;
 use std::sync::{Arc, Mutex, OnceLock};
 
 use e2e_common::{
@@ -258,14 +257,7 @@ fn rav4_log_raises_nothing_and_reports_counters() {
         }
     }
     std::fs::write(&cfg, lines.join("\n")).unwrap();
-    let out = Command::new(e2e_common::shimmyd())
-        .arg("--config")
-        .arg(&cfg)
-        .arg("--replay")
-        .arg(&log)
-        .arg("--fast")
-        .output()
-        .unwrap();
+    let out = e2e_common::replay_command(&cfg, &log, None).output().unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(

@@ -28,12 +28,10 @@ mod e2e_common;
 mod vcan_common;
 
 use std::collections::BTreeMap;
-use std::path::Path;
-use std::process::{Child, Command, Stdio};
 use std::thread;
 use std::time::{Duration, Instant};
 
-use e2e_common::{firmware_sim, replay, shimmyd, workspace, write_config, Journal};
+use e2e_common::{generate, replay, write_config, Generated, Journal, LiveDaemon};
 use serde_json::Value;
 use shimmy::source::log::LogReader;
 use shimmy::source::socketcan::LiveSink;
@@ -49,38 +47,6 @@ const SCENARIO: &str = "vcan_0p4mm";
 /// kinds and the event list must match exactly.
 const AMPLITUDE_REL: f64 = 0.15;
 const ESTIMATE_REL: f64 = 0.15;
-
-/// Waits for `child` up to `limit`; kills it and panics after that.
-fn wait_exit(child: &mut Child, what: &str, limit: Duration) -> std::process::ExitStatus {
-    let end = Instant::now() + limit;
-    loop {
-        if let Some(s) = child.try_wait().expect("wait") {
-            return s;
-        }
-        if Instant::now() > end {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("{what} did not exit within {limit:?}");
-        }
-        thread::sleep(Duration::from_millis(20));
-    }
-}
-
-/// A child process killed if the test panics before it is waited for.
-struct Reaped(Child);
-
-impl Drop for Reaped {
-    fn drop(&mut self) {
-        if let Ok(None) = self.0.try_wait() {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
-}
-
-fn read_lossy(p: &Path) -> String {
-    String::from_utf8_lossy(&std::fs::read(p).unwrap_or_default()).into_owned()
-}
 
 fn num(v: &Value) -> f64 {
     v.as_f64().unwrap_or(f64::NAN)
@@ -100,29 +66,14 @@ fn shimmyd_live_on_vcan_writes_the_alerts_of_the_replay() {
     let (live_dir, replay_dir) = (dir.path().join("live"), dir.path().join("replay"));
     std::fs::create_dir_all(&live_dir).unwrap();
     std::fs::create_dir_all(&replay_dir).unwrap();
-    let sent_log = dir.path().join("sent.log");
-    let truth_path = dir.path().join("truth.json");
-
     // 1. firmware-sim writes the scenario's log and ground truth.
     let t = Instant::now();
-    let out = Command::new(firmware_sim())
-        .arg("--scenario")
-        .arg(workspace().join(format!("config/scenarios/{SCENARIO}.toml")))
-        .arg("--out")
-        .arg(&sent_log)
-        .arg("--truth")
-        .arg(&truth_path)
-        .arg("--quiet")
-        .output()
-        .expect("start firmware-sim");
-    assert!(
-        out.status.success(),
-        "firmware-sim: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let Generated {
+        log: sent_log,
+        truth,
+        ..
+    } = generate(SCENARIO, None, dir.path());
     let sim_wall = t.elapsed().as_secs_f64();
-    let truth: Value =
-        serde_json::from_str(&std::fs::read_to_string(&truth_path).unwrap()).unwrap();
     let mut frames = Vec::new();
     let mut log = LogReader::open(&sent_log).unwrap();
     while let Some(f) = log.next_frame().unwrap() {
@@ -132,23 +83,7 @@ fn shimmyd_live_on_vcan_writes_the_alerts_of_the_replay() {
 
     // 2. The daemon, live on the interface.
     let cfg = write_config(&live_dir, &format!("interfaces = [{ifname:?}]"));
-    let err_path = live_dir.join("shimmyd.stderr");
-    let mut daemon = Reaped(
-        Command::new(shimmyd())
-            .arg("--config")
-            .arg(&cfg)
-            .stdout(Stdio::null())
-            .stderr(std::fs::File::create(&err_path).unwrap())
-            .spawn()
-            .expect("start shimmyd"),
-    );
-    let t = Instant::now();
-    while !read_lossy(&err_path).contains("started (live") {
-        if daemon.0.try_wait().unwrap().is_some() || t.elapsed() > Duration::from_secs(60) {
-            panic!("shimmyd did not start: {}", read_lossy(&err_path));
-        }
-        thread::sleep(Duration::from_millis(50));
-    }
+    let daemon = LiveDaemon::start(&cfg, &live_dir);
 
     // 3. The frames on the bus at their recorded timing. Like an ECU, never a burst to catch
     //    up: a frame that is late goes out at once and the lateness is reported.
@@ -183,26 +118,8 @@ fn shimmyd_live_on_vcan_writes_the_alerts_of_the_replay() {
     //    still in the kernel's socket buffer are not read, so wait until its per-second
     //    counters line has twice reported no new frame (the VM's emulated CPU can leave the
     //    daemon behind the bus for a while).
-    let quiet = |text: &str| text.matches("last 1 s: frames=0 ").count();
-    let quiet_before = quiet(&read_lossy(&err_path));
-    let t = Instant::now();
-    while quiet(&read_lossy(&err_path)) < quiet_before + 2 {
-        assert!(
-            t.elapsed() < Duration::from_secs(60),
-            "shimmyd still busy 60 s after the last frame: {}",
-            read_lossy(&err_path)
-        );
-        thread::sleep(Duration::from_millis(100));
-    }
-    // SAFETY: kill(2) on the pid of a child we spawned and have not yet reaped.
-    let rc = unsafe { libc::kill(daemon.0.id() as libc::pid_t, libc::SIGTERM) };
-    assert_eq!(rc, 0, "kill(SIGTERM)");
-    let status = wait_exit(
-        &mut daemon.0,
-        "shimmyd after SIGTERM",
-        Duration::from_secs(60),
-    );
-    let live_err = read_lossy(&err_path);
+    daemon.wait_idle(Duration::from_secs(60));
+    let (status, live_err) = daemon.stop(Duration::from_secs(60));
     assert!(status.success(), "shimmyd exited with {status}: {live_err}");
     assert!(live_err.contains("SIGTERM: stopping"), "{live_err}");
 

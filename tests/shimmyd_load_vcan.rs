@@ -37,11 +37,10 @@ mod vcan_common;
 
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
 use std::thread;
 use std::time::{Duration, Instant};
 
-use e2e_common::{firmware_sim, shimmyd, workspace, write_config, Journal};
+use e2e_common::{generate, replay_command, workspace, write_config, Journal, LiveDaemon};
 use shimmy::source::log::LogReader;
 use shimmy::source::socketcan::LiveSink;
 use shimmy::source::CanSource;
@@ -80,22 +79,7 @@ impl Shape {
 
 /// firmware-sim's reference bus for the scenario, timestamps from 0.
 fn reference_frames(dir: &Path) -> Vec<Frame> {
-    let log = dir.join("reference.log");
-    let out = Command::new(firmware_sim())
-        .arg("--scenario")
-        .arg(workspace().join(format!("config/scenarios/{SCENARIO}.toml")))
-        .arg("--out")
-        .arg(&log)
-        .arg("--truth")
-        .arg(dir.join("reference.truth.json"))
-        .arg("--quiet")
-        .output()
-        .expect("start firmware-sim");
-    assert!(
-        out.status.success(),
-        "firmware-sim: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let log = generate(SCENARIO, None, dir).log;
     let mut r = LogReader::open(&log).unwrap();
     let mut frames = Vec::new();
     while let Some(f) = r.next_frame().unwrap() {
@@ -243,27 +227,11 @@ fn clock_ticks_per_s() -> f64 {
     (unsafe { libc::sysconf(libc::_SC_CLK_TCK) }) as f64
 }
 
-fn read_lossy(p: &Path) -> String {
-    String::from_utf8_lossy(&std::fs::read(p).unwrap_or_default()).into_owned()
-}
-
 fn iface_counter(iface: &str, name: &str) -> u64 {
     std::fs::read_to_string(format!("/sys/class/net/{iface}/statistics/{name}"))
         .ok()
         .and_then(|s| s.trim().parse().ok())
         .unwrap_or(0)
-}
-
-/// A child process killed if the test panics before it is waited for.
-struct Reaped(Child);
-
-impl Drop for Reaped {
-    fn drop(&mut self) {
-        if let Ok(None) = self.0.try_wait() {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
 }
 
 fn run_load(shape: Shape) {
@@ -277,25 +245,8 @@ fn run_load(shape: Shape) {
     let frames = schedule(&reference_frames(dir.path()), shape, seconds, fps);
 
     let cfg = write_config(dir.path(), &format!("interfaces = [{ifname:?}]"));
-    let err_path = dir.path().join("shimmyd.stderr");
-    let mut daemon = Reaped(
-        Command::new(shimmyd())
-            .arg("--config")
-            .arg(&cfg)
-            .current_dir(dir.path())
-            .stdout(Stdio::null())
-            .stderr(std::fs::File::create(&err_path).unwrap())
-            .spawn()
-            .expect("start shimmyd"),
-    );
-    let pid = daemon.0.id();
-    let t = Instant::now();
-    while !read_lossy(&err_path).contains("started (live") {
-        if daemon.0.try_wait().unwrap().is_some() || t.elapsed() > Duration::from_secs(60) {
-            panic!("shimmyd did not start: {}", read_lossy(&err_path));
-        }
-        thread::sleep(Duration::from_millis(20));
-    }
+    let daemon = LiveDaemon::start(&cfg, dir.path());
+    let pid = daemon.pid();
     let idle = proc_sample(pid);
 
     // The frames on a 1 ms tick. Like ECUs, the sender never bursts to catch up after a stall
@@ -334,31 +285,11 @@ fn run_load(shape: Shape) {
 
     // Wait until the daemon's per-second counters have twice said it read nothing, then stop
     // it as systemd would (SIGTERM: frames already read are processed, none lost).
-    let quiet = |text: &str| text.matches("last 1 s: frames=0 ").count();
-    let quiet_before = quiet(&read_lossy(&err_path));
     let t = Instant::now();
-    while quiet(&read_lossy(&err_path)) < quiet_before + 2 {
-        assert!(
-            t.elapsed() < Duration::from_secs(120),
-            "shimmyd still busy 120 s after the last frame: {}",
-            read_lossy(&err_path)
-        );
-        thread::sleep(Duration::from_millis(100));
-    }
+    daemon.wait_idle(Duration::from_secs(120));
     let caught_up = proc_sample(pid);
     let rx_dropped = iface_counter(&ifname, "rx_dropped") - rx_dropped_before;
-    // SAFETY: kill(2) on the pid of a child we spawned and have not yet reaped.
-    let rc = unsafe { libc::kill(pid as libc::pid_t, libc::SIGTERM) };
-    assert_eq!(rc, 0, "kill(SIGTERM)");
-    let end = Instant::now() + Duration::from_secs(60);
-    let status = loop {
-        if let Some(s) = daemon.0.try_wait().unwrap() {
-            break s;
-        }
-        assert!(Instant::now() < end, "shimmyd did not exit after SIGTERM");
-        thread::sleep(Duration::from_millis(20));
-    };
-    let log = read_lossy(&err_path);
+    let (status, log) = daemon.stop(Duration::from_secs(60));
     assert!(status.success(), "shimmyd exited with {status}: {log}");
 
     let journal = Journal::read(&dir.path().join("journal"));
@@ -469,14 +400,7 @@ fn replay_cpu_calibration() {
         let state = dir.path().join(format!("state{i}"));
         let before = children_cpu_s();
         let t = Instant::now();
-        let out = Command::new(shimmyd())
-            .arg("--config")
-            .arg(&cfg)
-            .arg("--replay")
-            .arg(&log)
-            .arg("--fast")
-            .arg("--state-dir")
-            .arg(&state)
+        let out = replay_command(&cfg, &log, Some(&state))
             .current_dir(dir.path())
             .output()
             .expect("start shimmyd");

@@ -1,6 +1,7 @@
 //! Shared by the shimmyd end-to-end tests (`tests/shimmyd_e2e_scenarios.rs`,
-//! `tests/shimmyd_e2e_vcan.rs`): the two executables run as processes (firmware-sim writes or
-//! sends a scenario, shimmyd replays or reads it live), the daemon configuration they use, and
+//! `tests/shimmyd_e2e_vcan.rs`, `tests/shimmyd_load_vcan.rs` and others): the two executables
+//! run as processes (firmware-sim writes or sends a scenario, shimmyd replays or reads it live,
+//! [`LiveDaemon`]), the daemon configuration they use, and
 //! what a run left in the journal, summarised for comparison with firmware-sim's ground truth.
 //!
 //! What it is not: a test, or a second implementation of the alert rules. The only rule here is
@@ -10,6 +11,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::OnceLock;
+use std::time::{Duration, Instant};
 
 use serde_json::Value;
 use shimmy::journal::Reader;
@@ -193,13 +195,8 @@ pub fn replay_reference(log: &Path, dir: &Path, settings: Option<&Path>) -> Jour
         ),
     )
     .unwrap();
-    let out = Command::new(shimmyd())
+    let out = replay_command(&cfg, log, None)
         .current_dir(workspace())
-        .arg("--config")
-        .arg(&cfg)
-        .arg("--replay")
-        .arg(log)
-        .arg("--fast")
         .output()
         .unwrap();
     assert!(
@@ -213,14 +210,7 @@ pub fn replay_reference(log: &Path, dir: &Path, settings: Option<&Path>) -> Jour
 
 /// `shimmyd --config CFG --replay LOG --fast --state-dir DIR`; panics unless it exits 0.
 pub fn replay(cfg: &Path, log: &Path, state: &Path) -> Output {
-    let out = Command::new(shimmyd())
-        .arg("--config")
-        .arg(cfg)
-        .arg("--replay")
-        .arg(log)
-        .arg("--fast")
-        .arg("--state-dir")
-        .arg(state)
+    let out = replay_command(cfg, log, Some(state))
         .output()
         .expect("start shimmyd");
     assert!(
@@ -376,5 +366,105 @@ pub fn truth_shimmy(truth: &Value, confirm: usize, window: usize) -> (Expect, Op
         Some(a) if a > 0.25 => (Expect::Alert, Some(a)),
         Some(a) if a < 0.15 => (Expect::NoAlert, Some(a)),
         Some(a) => (Expect::Either, Some(a)),
+    }
+}
+
+/// `shimmyd --config CFG --replay LOG --fast [--state-dir STATE]`, not yet run: the caller adds
+/// what it needs (a working directory) and decides what a failure means.
+pub fn replay_command(cfg: &Path, log: &Path, state: Option<&Path>) -> Command {
+    let mut cmd = Command::new(shimmyd());
+    cmd.arg("--config").arg(cfg).arg("--replay").arg(log).arg("--fast");
+    if let Some(s) = state {
+        cmd.arg("--state-dir").arg(s);
+    }
+    cmd
+}
+
+/// A file's text as far as it is UTF-8 (a daemon's stderr while it is still writing); empty
+/// when it does not exist yet.
+pub fn read_lossy(p: &Path) -> String {
+    String::from_utf8_lossy(&std::fs::read(p).unwrap_or_default()).into_owned()
+}
+
+/// shimmyd running live (reading `[input] interfaces`) as a child process, its stderr in a
+/// file; killed if the test panics before [`LiveDaemon::stop`].
+pub struct LiveDaemon {
+    child: std::process::Child,
+    err_path: PathBuf,
+}
+
+impl LiveDaemon {
+    /// Starts `shimmyd --config CFG` in `dir` (stderr to `dir/shimmyd.stderr`) and waits up to
+    /// 60 s for its "started (live" line; panics with its stderr if it exits or is slower.
+    pub fn start(cfg: &Path, dir: &Path) -> LiveDaemon {
+        let err_path = dir.join("shimmyd.stderr");
+        let child = Command::new(shimmyd())
+            .arg("--config")
+            .arg(cfg)
+            .current_dir(dir)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::fs::File::create(&err_path).unwrap())
+            .spawn()
+            .expect("start shimmyd");
+        let mut d = LiveDaemon { child, err_path };
+        let t = Instant::now();
+        while !d.stderr().contains("started (live") {
+            if d.child.try_wait().unwrap().is_some() || t.elapsed() > Duration::from_secs(60) {
+                panic!("shimmyd did not start: {}", d.stderr());
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        d
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// Its stderr so far.
+    pub fn stderr(&self) -> String {
+        read_lossy(&self.err_path)
+    }
+
+    /// Waits until its per-second counters line has twice more said it read no frame: it has
+    /// caught up with the bus (frames still in the kernel's socket buffer are not read after
+    /// SIGTERM, so a test waits for this before stopping it). Panics after `limit`.
+    pub fn wait_idle(&self, limit: Duration) {
+        let quiet = |text: &str| text.matches("last 1 s: frames=0 ").count();
+        let before = quiet(&self.stderr());
+        let t = Instant::now();
+        while quiet(&self.stderr()) < before + 2 {
+            assert!(
+                t.elapsed() < limit,
+                "shimmyd still busy {limit:?} after the last frame: {}",
+                self.stderr()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    /// Stops it as systemd would (SIGTERM) and waits up to `limit` for its exit; its exit
+    /// status and stderr. Panics (after killing it) when it does not exit in time.
+    pub fn stop(mut self, limit: Duration) -> (std::process::ExitStatus, String) {
+        // SAFETY: kill(2) on the pid of a child we spawned and have not yet reaped.
+        let rc = unsafe { libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM) };
+        assert_eq!(rc, 0, "kill(SIGTERM)");
+        let end = Instant::now() + limit;
+        loop {
+            if let Some(s) = self.child.try_wait().expect("wait") {
+                return (s, self.stderr());
+            }
+            assert!(Instant::now() < end, "shimmyd did not exit within {limit:?} of SIGTERM");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+impl Drop for LiveDaemon {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
     }
 }
