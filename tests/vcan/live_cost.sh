@@ -11,10 +11,12 @@ set -euo pipefail
 
 usage() {
     cat <<'EOF'
-usage: tests/vcan/live_cost.sh [--seconds S] [--fps N] [--host]
+usage: tests/vcan/live_cost.sh [--seconds S] [--fps N] [--smp N] [--host]
 
   --seconds S   load duration per shape (default 60)
   --fps N       frames per second on the bus (default 8000)
+  --smp N       virtual CPUs of the VM (default 1: sender and daemon share one; 2 lets the
+                sender reach rates one emulated CPU cannot)
   --host        run on this host's vcan0 instead of the QEMU VM (no calibration needed:
                 the scale is 1)
 
@@ -28,6 +30,7 @@ while [ $# -gt 0 ]; do
     case $1 in
         --seconds) SECONDS_LOAD=$2; shift ;;
         --fps) FPS=$2; shift ;;
+        --smp) export SHIMMY_VCAN_SMP=$2; shift ;;
         --host) MODE=--host ;;
         -h | --help) usage; exit 0 ;;
         *) echo "live_cost.sh: unknown argument $1" >&2; usage >&2; exit 2 ;;

@@ -33,6 +33,8 @@ Environment:
   SHIMMY_VCAN_KERNEL_PKG   Debian kernel package (default: what linux-image-amd64 depends on)
   SHIMMY_VCAN_CMD_TIMEOUT  seconds per command inside the VM (default 300)
   SHIMMY_VCAN_VM_TIMEOUT   seconds for the whole VM run, host side (default 900)
+  SHIMMY_VCAN_SMP          virtual CPUs of the VM (default 1; tests/vcan/live_cost.sh --smp 2
+                           gives the load test's sender a CPU of its own, multi-threaded TCG)
   SHIMMY_VCAN_LOAD_S       passed into the VM (seconds of reference bus traffic in live_vcan)
 
 Steps find the suite's firmware-sim through SHIMMY_FWSIM_BIN (set here when it is built).
@@ -45,6 +47,7 @@ STATIC_TARGET=${SHIMMY_VCAN_TARGET_DIR:-$ROOT/target/vcan-static}
 SUITE=$ROOT/tests/vcan/suite.txt
 CMD_TIMEOUT=${SHIMMY_VCAN_CMD_TIMEOUT:-300}
 VM_TIMEOUT=${SHIMMY_VCAN_VM_TIMEOUT:-900}
+SMP=${SHIMMY_VCAN_SMP:-1}
 TRIPLE=x86_64-unknown-linux-gnu
 MODULES=(can can-raw can-dev vcan) # load order matters: vcan needs can-dev
 MODE=vm
@@ -296,7 +299,7 @@ run_vm() {
     local t0 t1 rc=0
     t0=$(date +%s.%N)
     # KVM is not used: on the development machines guests hang or abort on an MSR under KVM.
-    timeout --kill-after=10 "$VM_TIMEOUT" qemu-system-x86_64 -accel tcg -cpu max -m 512 -smp 1 \
+    timeout --kill-after=10 "$VM_TIMEOUT" qemu-system-x86_64 -accel tcg -cpu max -m 512 -smp "$SMP" \
         -nographic -no-reboot -kernel "$KDIR/vmlinuz" -initrd "$CACHE/initrd.gz" \
         -append "console=ttyS0 quiet panic=-1" </dev/null 2>&1 | tr -d '\r' | tee "$logf" || rc=$?
     t1=$(date +%s.%N)
