@@ -3,7 +3,9 @@
 //!
 //! Each vehicle gets a clearance drawn log-uniformly in 0.03–0.4 mm, its own nuisances (±10 %
 //! on the steering stiffnesses and dampings, unbalance ×0.5–2, road noise ×0.7–1.4, all drawn
-//! from the vehicle's seed) and a drive of N braking events to a stop at 30–100 km/h and
+//! from the vehicle's seed; with the MODEL.md §15 column also its rim inertia, torsion bar
+//! stiffness and damping, and the driver's hands drawn per braking event, docs/COLUMN.md)
+//! and a drive of N braking events to a stop at 30–100 km/h and
 //! 0.3–0.8 g. firmware-sim writes its candump log; the whole monitor chain then runs on that
 //! file exactly as `shimmy estimate` does (log reader → DBC → signal mapping → events →
 //! features → posterior → alerts), with the nominal vehicle's response table. The scores are
@@ -37,7 +39,7 @@ use shimmy::analysis::sweep::{default_threads, par_map};
 use shimmy::cli::estimate::{estimate_files, Estimation};
 use shimmy::dbc::Database;
 use shimmy::model::VehicleParams;
-use shimmy::observer::simulate::{perturb, NuisanceRanges};
+use shimmy::observer::simulate::{perturb, HandsPrior, NuisanceRanges};
 use shimmy::observer::table::{vehicle_hash, ResponseTable};
 use shimmy::observer::ObserverConfig;
 use shimmy::profile::bus::BusSpec;
@@ -344,6 +346,16 @@ pub fn vehicle_scenario(
     s
 }
 
+/// The scenario's `[hands]` section: the prior each leg of the drive draws the driver's hands
+/// from (MODEL.md §15 column; docs/COLUMN.md).
+pub fn hands_section(prior: &HandsPrior) -> anyhow::Result<String> {
+    #[derive(Serialize)]
+    struct Section<'a> {
+        hands: &'a HandsPrior,
+    }
+    Ok(format!("\n{}", toml::to_string(&Section { hands: prior })?))
+}
+
 /// What a fleet vehicle is: its clearance, nuisance-drawn parameters, road-noise level and
 /// braking events (v0 km/h, decel g), all from its seed.
 #[derive(Clone, Debug)]
@@ -480,6 +492,11 @@ fn vehicle_log(
         args.phase_change == "per-stop",
         &events,
     );
+    // With the §15 column, the driver's hands are drawn per leg (so per braking event).
+    let text = match (&prior.hands, p.column.enabled) {
+        (Some(h), true) => text + &hands_section(h)?,
+        _ => text,
+    };
     let sc_path = dir.join(format!("fleet_{seed}.toml"));
     std::fs::write(&sc_path, &text)?;
     let sc = Scenario::parse(&text, &sc_path.display().to_string())?;

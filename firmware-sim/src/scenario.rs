@@ -63,6 +63,12 @@ pub struct Scenario {
     pub sensors: Sensors,
     #[serde(default)]
     pub faults: Faults,
+    /// The driver's hands on the steering wheel (MODEL.md §15 column only): the prior from
+    /// which each leg of the drive (from the start or a pull-away to the next stop, so each
+    /// braking event) draws off / light / firm grip and its values (docs/COLUMN.md). Absent:
+    /// the vehicle file's hands throughout.
+    #[serde(default)]
+    pub hands: Option<shimmy::observer::simulate::HandsPrior>,
 }
 
 fn default_step_s() -> f64 {
@@ -642,6 +648,9 @@ impl Scenario {
                 0.0,
                 1e6,
             )?;
+        }
+        if let Some(h) = &self.hands {
+            h.validate()?;
         }
         Ok(())
     }

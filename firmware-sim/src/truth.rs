@@ -112,6 +112,11 @@ pub struct EventTruth {
     /// two unbalance moments add in the steering linkage). Absent for a plant without them.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub unbalance_phase_cos: Option<f64>,
+    /// The driver's hands on the rim during the event (MODEL.md §15 column with a scenario
+    /// `[hands]` prior): the state (`off`, `light`, `firm`) and its inertia, stiffness and
+    /// damping. Absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hands: Option<shimmy::observer::simulate::HandsDraw>,
 }
 
 #[derive(Clone, Debug, Serialize, PartialEq)]
