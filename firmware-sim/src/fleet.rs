@@ -1008,6 +1008,62 @@ mod tests {
         std::fs::remove_dir_all(&base).unwrap();
     }
 
+    /// A fleet around a vehicle with the §15 column draws the driver's hands per braking event
+    /// and records them in the truth sidecar, inside the documented ranges; a 5-DOF fleet
+    /// records none.
+    #[test]
+    fn a_column_fleet_records_the_hands_of_every_event() {
+        let base = std::env::temp_dir().join(format!("fleet-hands-{}", std::process::id()));
+        let d = base.join("col");
+        std::fs::create_dir_all(&d).unwrap();
+        let mut col = VehicleParams::default();
+        col.column.enabled = true;
+        let vfile = base.join("col.toml");
+        std::fs::write(&vfile, toml::to_string(&col).unwrap()).unwrap();
+        let mut a = args(&["--vehicle", vfile.to_str().unwrap()], &d);
+        a.events = 6;
+        let (log, e) = log0(&a, &d).unwrap();
+        assert_eq!(e.events_true, 6);
+        let truth: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(log.with_extension("truth.json")).unwrap())
+                .unwrap();
+        let prior = HandsPrior::default();
+        let mut states = Vec::new();
+        for ev in truth["events"].as_array().unwrap() {
+            let h = &ev["hands"];
+            let state: shimmy::observer::simulate::HandsState =
+                serde_json::from_value(h["state"].clone()).unwrap();
+            let r = prior.range(state);
+            for (key, (lo, hi)) in [
+                ("inertia_kgm2", r.inertia_kgm2),
+                ("stiffness_nm_per_rad", r.stiffness_nm_per_rad),
+                ("damping_nms_per_rad", r.damping_nms_per_rad),
+            ] {
+                let v = h[key].as_f64().unwrap();
+                assert!((lo..=hi).contains(&v), "{state:?} {key} = {v} outside [{lo}, {hi}]");
+            }
+            states.push((state, h["damping_nms_per_rad"].as_f64().unwrap()));
+        }
+        assert_eq!(states.len(), 6);
+        // A new draw per event, not one for the whole drive.
+        assert!(states.windows(2).any(|w| w[0] != w[1]), "{states:?}");
+        // The vehicle's column itself was drawn within the published ranges.
+        let v = VehicleParams::from_toml_file(d.join("vehicle_4242.toml")).unwrap();
+        let cr = shimmy::observer::simulate::ColumnRanges::PUBLISHED;
+        assert!((cr.inertia_kgm2.0..=cr.inertia_kgm2.1).contains(&v.column.inertia_kgm2));
+        assert_ne!(v.column.torsion_bar_nm_per_rad, col.column.torsion_bar_nm_per_rad);
+
+        // 5-DOF: no hands anywhere in the truth.
+        let d5 = base.join("5dof");
+        std::fs::create_dir_all(&d5).unwrap();
+        let mut a5 = args(&[], &d5);
+        a5.events = 2;
+        let (log5, _) = log0(&a5, &d5).unwrap();
+        let t5 = std::fs::read_to_string(log5.with_extension("truth.json")).unwrap();
+        assert!(!t5.contains("\"hands\""));
+        std::fs::remove_dir_all(&base).unwrap();
+    }
+
     /// `--replicate 1` drives the same vehicle again: vehicle file, plan, clearance and wheel
     /// phases are the seed's; only the noise seed (and so the frames) differ.
     #[test]
