@@ -9,8 +9,10 @@ use rand_chacha::ChaCha8Rng;
 use shimmy::analysis::{peak_abs, Bandpass};
 use shimmy::model::{rhs::ix, run, Hands, JointMode, Scenario, Simulator, VehicleParams};
 use shimmy::observer::simulate::{
-    event_hands, perturb, ColumnRanges, HandsPrior, HandsState, NuisanceRanges,
+    event_hands, perturb, run_model_grid, ColumnRanges, EventShape, HandsPrior, HandsState,
+    NuisanceRanges,
 };
+use shimmy::observer::ObserverConfig;
 use shimmy::observer::table::vehicle_hash;
 
 /// The whole state after 3 s of MODEL.md §6's event (0.03 mm dual joints, seed 3), as f64 bits.
@@ -223,6 +225,33 @@ fn the_hands_draw_follows_its_probabilities_and_ranges() {
         let f = count[i] as f64 / n as f64;
         assert!((f - p).abs() < 0.03, "state {i}: {f} vs {p}");
     }
+}
+
+/// `shimmy calibrate`'s model events: with the column, each speed's run carries the hands its
+/// seed draws (and they change the run); a 5-DOF vehicle or no prior: none.
+#[test]
+fn the_table_builds_model_events_draw_hands_per_event_with_the_column() {
+    let cfg = ObserverConfig::default();
+    let prior = HandsPrior::default();
+    let mut pc = VehicleParams::default();
+    pc.column.enabled = true;
+    let speeds = [40.0 / 3.6, 60.0 / 3.6];
+    // One seed per speed: the trunk's hands, then the branch's own.
+    let seeds = [11u64, 12];
+    let grid = |p: &VehicleParams, h: Option<&HandsPrior>| {
+        run_model_grid(p, 0.2e-3, &speeds, &[0.5], &seeds, EventShape::DRIVE, &cfg, h)
+            .unwrap()
+            .runs
+    };
+    let with = grid(&pc, Some(&prior));
+    for (i, by_decel) in with.iter().enumerate() {
+        assert_eq!(by_decel[0].hands, Some(event_hands(&prior, seeds[i])));
+    }
+    let without = grid(&pc, None);
+    assert!(without.iter().flatten().all(|r| r.hands.is_none()));
+    assert_ne!(with[1][0].sw_rad, without[1][0].sw_rad, "the hands reach the rim");
+    let five = grid(&VehicleParams::default(), Some(&prior));
+    assert!(five.iter().flatten().all(|r| r.hands.is_none()));
 }
 
 #[test]
