@@ -299,4 +299,16 @@ fn bad_hands_and_ranges_are_refused_with_the_key() {
     )
     .unwrap();
     assert_eq!(old, NuisanceRanges::default());
+    // ... and a default prior is written as before (tables byte for byte); another one in full.
+    let text = serde_json::to_string(&NuisanceRanges::default()).unwrap();
+    assert_eq!(
+        text,
+        r#"{"stiffness_damping_rel":0.1,"unbalance_factor":[0.5,2.0],"road_noise_factor":[0.7,1.4]}"#
+    );
+    let mut other = NuisanceRanges::default();
+    other.hands.as_mut().unwrap().firm.probability = 0.5;
+    other.hands.as_mut().unwrap().light.probability = 0.35;
+    let back: NuisanceRanges =
+        serde_json::from_str(&serde_json::to_string(&other).unwrap()).unwrap();
+    assert_eq!(back, other);
 }

@@ -734,6 +734,31 @@ decel_g = 0.5
         format!("{:#}", Scenario::parse(text, "test").unwrap_err())
     }
 
+    /// The `[hands]` prior (docs/COLUMN.md) as `firmware-sim fleet` writes it parses back, and
+    /// a prior that cannot be drawn from is refused with the field named.
+    #[test]
+    fn the_hands_prior_round_trips_and_bad_ones_name_their_field() {
+        let prior = shimmy::observer::simulate::HandsPrior::default();
+        let text = format!(
+            "{MINIMAL}{}",
+            crate::fleet::hands_section(&prior).unwrap()
+        );
+        assert_eq!(Scenario::parse(&text, "test").unwrap().hands, Some(prior));
+        let mut bad = prior;
+        bad.off.probability = 0.5;
+        let text = format!("{MINIMAL}{}", crate::fleet::hands_section(&bad).unwrap());
+        assert!(err(&text).contains("must sum to 1"), "{}", err(&text));
+        let mut bad = prior;
+        bad.firm.damping_nms_per_rad = (2.0, -1.0);
+        let text = format!("{MINIMAL}{}", crate::fleet::hands_section(&bad).unwrap());
+        assert!(
+            err(&text).contains("hands.firm.damping_nms_per_rad"),
+            "{}",
+            err(&text)
+        );
+        assert!(err(&format!("{MINIMAL}\n[hands]\nsometimes = 1\n")).contains("sometimes"));
+    }
+
     #[test]
     fn invalid_clearance_and_wear_values_name_their_key() {
         let with = |extra: &str| MINIMAL.replace("left_mm = 0.2", extra);

@@ -42,14 +42,23 @@ pub struct NuisanceRanges {
     pub road_noise_factor: (f64, f64),
     /// Steering wheel and column of a vehicle with the MODEL.md §15 column (J_sw, k_tb, c_tb,
     /// uniform within these ranges; docs/COLUMN.md); `None`: the nominal column. Not drawn
-    /// for a 5-DOF vehicle. Absent in tables written before it existed: the published ranges.
-    #[serde(default = "published_column")]
+    /// for a 5-DOF vehicle. Absent in tables written before it existed: the published ranges;
+    /// not written when it is them (so a default-prior table is byte for byte as before).
+    #[serde(default = "published_column", skip_serializing_if = "is_published_column")]
     pub column: Option<ColumnRanges>,
     /// The driver's hands on the rim, drawn per braking event for a vehicle with the §15
     /// column ([`HandsPrior`]); `None`: the vehicle's own hands for every event. Absent in
-    /// tables written before it existed: [`HandsPrior::default`].
-    #[serde(default = "default_hands")]
+    /// tables written before it existed: [`HandsPrior::default`]; not written when it is that.
+    #[serde(default = "default_hands", skip_serializing_if = "is_default_hands")]
     pub hands: Option<HandsPrior>,
+}
+
+fn is_published_column(c: &Option<ColumnRanges>) -> bool {
+    *c == published_column()
+}
+
+fn is_default_hands(h: &Option<HandsPrior>) -> bool {
+    *h == default_hands()
 }
 
 fn published_column() -> Option<ColumnRanges> {
