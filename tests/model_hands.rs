@@ -12,8 +12,8 @@ use shimmy::observer::simulate::{
     event_hands, perturb, run_model_grid, ColumnRanges, EventShape, HandsPrior, HandsState,
     NuisanceRanges,
 };
-use shimmy::observer::ObserverConfig;
 use shimmy::observer::table::vehicle_hash;
+use shimmy::observer::ObserverConfig;
 
 /// The whole state after 3 s of MODEL.md §6's event (0.03 mm dual joints, seed 3), as f64 bits.
 fn state_bits(p: &VehicleParams, hands: Option<Hands>) -> Vec<u64> {
@@ -181,7 +181,10 @@ fn the_column_draw_stays_in_its_ranges_and_leaves_the_5dof_draws_alone() {
         assert_eq!(a.random::<u64>(), b.random::<u64>());
         let c = &qc.column;
         assert!(inside(c.inertia_kgm2, cr.inertia_kgm2), "{c:?}");
-        assert!(inside(c.torsion_bar_nm_per_rad, cr.torsion_bar_nm_per_rad), "{c:?}");
+        assert!(
+            inside(c.torsion_bar_nm_per_rad, cr.torsion_bar_nm_per_rad),
+            "{c:?}"
+        );
         assert!(inside(
             c.torsion_bar_damping_nms_per_rad,
             cr.torsion_bar_damping_nms_per_rad
@@ -197,7 +200,10 @@ fn the_column_draw_stays_in_its_ranges_and_leaves_the_5dof_draws_alone() {
     assert!(spread.0 < lo + 0.1 * (hi - lo) && spread.1 > hi - 0.1 * (hi - lo));
     // --exact-vehicle: no column draw.
     let mut g = ChaCha8Rng::seed_from_u64(1);
-    assert_eq!(perturb(&pc, &NuisanceRanges::NONE, &mut g).column, pc.column);
+    assert_eq!(
+        perturb(&pc, &NuisanceRanges::NONE, &mut g).column,
+        pc.column
+    );
 }
 
 #[test]
@@ -213,8 +219,14 @@ fn the_hands_draw_follows_its_probabilities_and_ranges() {
         let h = d.hands;
         let inside = |x: f64, (lo, hi): (f64, f64)| (lo..=hi).contains(&x);
         assert!(inside(h.inertia_kgm2, r.inertia_kgm2), "{d:?}");
-        assert!(inside(h.stiffness_nm_per_rad, r.stiffness_nm_per_rad), "{d:?}");
-        assert!(inside(h.damping_nms_per_rad, r.damping_nms_per_rad), "{d:?}");
+        assert!(
+            inside(h.stiffness_nm_per_rad, r.stiffness_nm_per_rad),
+            "{d:?}"
+        );
+        assert!(
+            inside(h.damping_nms_per_rad, r.damping_nms_per_rad),
+            "{d:?}"
+        );
         count[d.state as usize] += 1;
     }
     for (i, p) in [prior.off, prior.light, prior.firm]
@@ -239,9 +251,18 @@ fn the_table_builds_model_events_draw_hands_per_event_with_the_column() {
     // One seed per speed: the trunk's hands, then the branch's own.
     let seeds = [11u64, 12];
     let grid = |p: &VehicleParams, h: Option<&HandsPrior>| {
-        run_model_grid(p, 0.2e-3, &speeds, &[0.5], &seeds, EventShape::DRIVE, &cfg, h)
-            .unwrap()
-            .runs
+        run_model_grid(
+            p,
+            0.2e-3,
+            &speeds,
+            &[0.5],
+            &seeds,
+            EventShape::DRIVE,
+            &cfg,
+            h,
+        )
+        .unwrap()
+        .runs
     };
     let with = grid(&pc, Some(&prior));
     for (i, by_decel) in with.iter().enumerate() {
@@ -249,7 +270,10 @@ fn the_table_builds_model_events_draw_hands_per_event_with_the_column() {
     }
     let without = grid(&pc, None);
     assert!(without.iter().flatten().all(|r| r.hands.is_none()));
-    assert_ne!(with[1][0].sw_rad, without[1][0].sw_rad, "the hands reach the rim");
+    assert_ne!(
+        with[1][0].sw_rad, without[1][0].sw_rad,
+        "the hands reach the rim"
+    );
     let five = grid(&VehicleParams::default(), Some(&prior));
     assert!(five.iter().flatten().all(|r| r.hands.is_none()));
 }
@@ -257,9 +281,12 @@ fn the_table_builds_model_events_draw_hands_per_event_with_the_column() {
 #[test]
 fn bad_hands_and_ranges_are_refused_with_the_key() {
     let e = VehicleParams::from_toml_str("[column]\nhands_inertia_kgm2 = -0.1\n").unwrap_err();
-    assert!(format!("{e:#}").contains("column.hands_inertia_kgm2"), "{e:#}");
-    let e = VehicleParams::from_toml_str("[column]\nhands_stiffness_nm_per_rad = nan\n")
-        .unwrap_err();
+    assert!(
+        format!("{e:#}").contains("column.hands_inertia_kgm2"),
+        "{e:#}"
+    );
+    let e =
+        VehicleParams::from_toml_str("[column]\nhands_stiffness_nm_per_rad = nan\n").unwrap_err();
     assert!(
         format!("{e:#}").contains("column.hands_stiffness_nm_per_rad"),
         "{e:#}"
@@ -277,7 +304,10 @@ fn bad_hands_and_ranges_are_refused_with_the_key() {
         damping_nms_per_rad: 1.0,
     };
     let e = s.set_hands(&bad).unwrap_err();
-    assert!(e.to_string().contains("column.hands_stiffness_nm_per_rad"), "{e}");
+    assert!(
+        e.to_string().contains("column.hands_stiffness_nm_per_rad"),
+        "{e}"
+    );
     assert_eq!(s.hands(), before, "a refused value changes nothing");
     assert_eq!(s.state()[ix::SW], 0.0);
 
@@ -288,7 +318,10 @@ fn bad_hands_and_ranges_are_refused_with_the_key() {
     let mut h = HandsPrior::default();
     h.light.stiffness_nm_per_rad = (5.0, 1.0);
     let e = h.validate().unwrap_err();
-    assert!(e.to_string().contains("hands.light.stiffness_nm_per_rad"), "{e}");
+    assert!(
+        e.to_string().contains("hands.light.stiffness_nm_per_rad"),
+        "{e}"
+    );
     let mut c = ColumnRanges::PUBLISHED;
     c.inertia_kgm2 = (0.0, 0.05);
     let e = c.validate().unwrap_err();

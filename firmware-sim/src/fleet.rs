@@ -1024,9 +1024,10 @@ mod tests {
         a.events = 6;
         let (log, e) = log0(&a, &d).unwrap();
         assert_eq!(e.events_true, 6);
-        let truth: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(log.with_extension("truth.json")).unwrap())
-                .unwrap();
+        let truth: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(log.with_extension("truth.json")).unwrap(),
+        )
+        .unwrap();
         let prior = HandsPrior::default();
         let mut states = Vec::new();
         for ev in truth["events"].as_array().unwrap() {
@@ -1040,7 +1041,10 @@ mod tests {
                 ("damping_nms_per_rad", r.damping_nms_per_rad),
             ] {
                 let v = h[key].as_f64().unwrap();
-                assert!((lo..=hi).contains(&v), "{state:?} {key} = {v} outside [{lo}, {hi}]");
+                assert!(
+                    (lo..=hi).contains(&v),
+                    "{state:?} {key} = {v} outside [{lo}, {hi}]"
+                );
             }
             states.push((state, h["damping_nms_per_rad"].as_f64().unwrap()));
         }
@@ -1051,7 +1055,10 @@ mod tests {
         let v = VehicleParams::from_toml_file(d.join("vehicle_4242.toml")).unwrap();
         let cr = shimmy::observer::simulate::ColumnRanges::PUBLISHED;
         assert!((cr.inertia_kgm2.0..=cr.inertia_kgm2.1).contains(&v.column.inertia_kgm2));
-        assert_ne!(v.column.torsion_bar_nm_per_rad, col.column.torsion_bar_nm_per_rad);
+        assert_ne!(
+            v.column.torsion_bar_nm_per_rad,
+            col.column.torsion_bar_nm_per_rad
+        );
 
         // 5-DOF: no hands anywhere in the truth.
         let d5 = base.join("5dof");

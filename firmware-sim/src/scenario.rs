@@ -739,10 +739,7 @@ decel_g = 0.5
     #[test]
     fn the_hands_prior_round_trips_and_bad_ones_name_their_field() {
         let prior = shimmy::observer::simulate::HandsPrior::default();
-        let text = format!(
-            "{MINIMAL}{}",
-            crate::fleet::hands_section(&prior).unwrap()
-        );
+        let text = format!("{MINIMAL}{}", crate::fleet::hands_section(&prior).unwrap());
         assert_eq!(Scenario::parse(&text, "test").unwrap().hands, Some(prior));
         let mut bad = prior;
         bad.off.probability = 0.5;

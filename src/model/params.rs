@@ -312,7 +312,10 @@ impl Hands {
     pub fn validate(&self) -> Result<(), ParamError> {
         for (key, v) in [
             ("column.hands_inertia_kgm2", self.inertia_kgm2),
-            ("column.hands_stiffness_nm_per_rad", self.stiffness_nm_per_rad),
+            (
+                "column.hands_stiffness_nm_per_rad",
+                self.stiffness_nm_per_rad,
+            ),
             ("column.hands_damping_nms_per_rad", self.damping_nms_per_rad),
         ] {
             if !(v.is_finite() && v >= 0.0) {

@@ -44,7 +44,10 @@ pub struct NuisanceRanges {
     /// uniform within these ranges; docs/COLUMN.md); `None`: the nominal column. Not drawn
     /// for a 5-DOF vehicle. Absent in tables written before it existed: the published ranges;
     /// not written when it is them (so a default-prior table is byte for byte as before).
-    #[serde(default = "published_column", skip_serializing_if = "is_published_column")]
+    #[serde(
+        default = "published_column",
+        skip_serializing_if = "is_published_column"
+    )]
     pub column: Option<ColumnRanges>,
     /// The driver's hands on the rim, drawn per braking event for a vehicle with the §15
     /// column ([`HandsPrior`]); `None`: the vehicle's own hands for every event. Absent in
@@ -231,7 +234,11 @@ impl HandsPrior {
     /// (±1e-6), every range [low, high] with 0 <= low <= high. The message names the field.
     pub fn validate(&self) -> anyhow::Result<()> {
         let mut sum = 0.0;
-        for (name, r) in [("off", &self.off), ("light", &self.light), ("firm", &self.firm)] {
+        for (name, r) in [
+            ("off", &self.off),
+            ("light", &self.light),
+            ("firm", &self.firm),
+        ] {
             if !(r.probability.is_finite() && r.probability >= 0.0) {
                 bail!(
                     "hands.{name}.probability: must be finite and >= 0 (got {})",
@@ -239,7 +246,12 @@ impl HandsPrior {
                 );
             }
             sum += r.probability;
-            check_range(&format!("hands.{name}.inertia_kgm2"), r.inertia_kgm2.0, r.inertia_kgm2.1, 0.0)?;
+            check_range(
+                &format!("hands.{name}.inertia_kgm2"),
+                r.inertia_kgm2.0,
+                r.inertia_kgm2.1,
+                0.0,
+            )?;
             check_range(
                 &format!("hands.{name}.stiffness_nm_per_rad"),
                 r.stiffness_nm_per_rad.0,
@@ -816,11 +828,18 @@ pub fn run_model(
     shape: EventShape,
     cfg: &ObserverConfig,
 ) -> anyhow::Result<Vec<ModelRun>> {
-    Ok(
-        run_model_grid(p, clearance_m, &[v0_mps], decels_g, &[seed], shape, cfg, None)?
-            .runs
-            .remove(0),
-    )
+    Ok(run_model_grid(
+        p,
+        clearance_m,
+        &[v0_mps],
+        decels_g,
+        &[seed],
+        shape,
+        cfg,
+        None,
+    )?
+    .runs
+    .remove(0))
 }
 
 /// Runs one braking event at (`clearance_m`, `v0_mps`, `decel_g`) with `seed` on vehicle `p`,
