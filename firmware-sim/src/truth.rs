@@ -7,8 +7,9 @@
 //! initial speed, plateau deceleration) with its true steering-wheel shimmy amplitude (MODEL.md
 //! §11: the peak of the 3–25 Hz, 4th-order zero-phase band-passed δ_sw over
 //! `[t_start, t_end + 0.3 s]`, taken from the model's continuous output at 1 kHz, not from the
-//! quantised sensor) and its per-joint contact statistics (MODEL.md §4), and per-message frame
-//! counts.
+//! quantised sensor), its per-joint contact statistics (MODEL.md §4) and, with the §15 column
+//! and a scenario `[hands]` prior, the driver's hands on the rim (state and values), and
+//! per-message frame counts.
 //!
 //! Not here: running the simulation. All times are seconds since the start of the log; add
 //! `start_unix_s` for the frame timestamps.
