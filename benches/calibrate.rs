@@ -61,6 +61,7 @@ fn main() {
             &seeds,
             EventShape::DRIVE,
             &cfg,
+            None,
         )
         .expect("model runs");
         for (iv, by_decel) in grid.runs.iter().enumerate() {

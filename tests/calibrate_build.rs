@@ -50,6 +50,7 @@ fn one_pull_away_serves_every_speed_and_deceleration_at_under_half_the_model_tim
         &seeds,
         EventShape::DRIVE,
         &cfg,
+        None,
     )
     .unwrap();
     let alone: usize = grid.runs.iter().flatten().map(|r| r.sw_rad.len()).sum();

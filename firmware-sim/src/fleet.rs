@@ -3,7 +3,9 @@
 //!
 //! Each vehicle gets a clearance drawn log-uniformly in 0.03–0.4 mm, its own nuisances (±10 %
 //! on the steering stiffnesses and dampings, unbalance ×0.5–2, road noise ×0.7–1.4, all drawn
-//! from the vehicle's seed) and a drive of N braking events to a stop at 30–100 km/h and
+//! from the vehicle's seed; with the MODEL.md §15 column also its rim inertia, torsion bar
+//! stiffness and damping, and the driver's hands drawn per braking event, docs/COLUMN.md)
+//! and a drive of N braking events to a stop at 30–100 km/h and
 //! 0.3–0.8 g. firmware-sim writes its candump log; the whole monitor chain then runs on that
 //! file exactly as `shimmy estimate` does (log reader → DBC → signal mapping → events →
 //! features → posterior → alerts), with the nominal vehicle's response table. The scores are
@@ -37,7 +39,7 @@ use shimmy::analysis::sweep::{default_threads, par_map};
 use shimmy::cli::estimate::{estimate_files, Estimation};
 use shimmy::dbc::Database;
 use shimmy::model::VehicleParams;
-use shimmy::observer::simulate::{perturb, NuisanceRanges};
+use shimmy::observer::simulate::{perturb, HandsPrior, NuisanceRanges};
 use shimmy::observer::table::{vehicle_hash, ResponseTable};
 use shimmy::observer::ObserverConfig;
 use shimmy::profile::bus::BusSpec;
@@ -344,6 +346,16 @@ pub fn vehicle_scenario(
     s
 }
 
+/// The scenario's `[hands]` section: the prior each leg of the drive draws the driver's hands
+/// from (MODEL.md §15 column; docs/COLUMN.md).
+pub fn hands_section(prior: &HandsPrior) -> anyhow::Result<String> {
+    #[derive(Serialize)]
+    struct Section<'a> {
+        hands: &'a HandsPrior,
+    }
+    Ok(format!("\n{}", toml::to_string(&Section { hands: prior })?))
+}
+
 /// What a fleet vehicle is: its clearance, nuisance-drawn parameters, road-noise level and
 /// braking events (v0 km/h, decel g), all from its seed.
 #[derive(Clone, Debug)]
@@ -480,6 +492,11 @@ fn vehicle_log(
         args.phase_change == "per-stop",
         &events,
     );
+    // With the §15 column, the driver's hands are drawn per leg (so per braking event).
+    let text = match (&prior.hands, p.column.enabled) {
+        (Some(h), true) => text + &hands_section(h)?,
+        _ => text,
+    };
     let sc_path = dir.join(format!("fleet_{seed}.toml"));
     std::fs::write(&sc_path, &text)?;
     let sc = Scenario::parse(&text, &sc_path.display().to_string())?;
@@ -988,6 +1005,69 @@ mod tests {
             format!("{e:#}").contains("--vehicle /nonexistent/vehicle.toml"),
             "{e:#}"
         );
+        std::fs::remove_dir_all(&base).unwrap();
+    }
+
+    /// A fleet around a vehicle with the §15 column draws the driver's hands per braking event
+    /// and records them in the truth sidecar, inside the documented ranges; a 5-DOF fleet
+    /// records none.
+    #[test]
+    fn a_column_fleet_records_the_hands_of_every_event() {
+        let base = std::env::temp_dir().join(format!("fleet-hands-{}", std::process::id()));
+        let d = base.join("col");
+        std::fs::create_dir_all(&d).unwrap();
+        let mut col = VehicleParams::default();
+        col.column.enabled = true;
+        let vfile = base.join("col.toml");
+        std::fs::write(&vfile, toml::to_string(&col).unwrap()).unwrap();
+        let mut a = args(&["--vehicle", vfile.to_str().unwrap()], &d);
+        a.events = 6;
+        let (log, e) = log0(&a, &d).unwrap();
+        assert_eq!(e.events_true, 6);
+        let truth: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(log.with_extension("truth.json")).unwrap(),
+        )
+        .unwrap();
+        let prior = HandsPrior::default();
+        let mut states = Vec::new();
+        for ev in truth["events"].as_array().unwrap() {
+            let h = &ev["hands"];
+            let state: shimmy::observer::simulate::HandsState =
+                serde_json::from_value(h["state"].clone()).unwrap();
+            let r = prior.range(state);
+            for (key, (lo, hi)) in [
+                ("inertia_kgm2", r.inertia_kgm2),
+                ("stiffness_nm_per_rad", r.stiffness_nm_per_rad),
+                ("damping_nms_per_rad", r.damping_nms_per_rad),
+            ] {
+                let v = h[key].as_f64().unwrap();
+                assert!(
+                    (lo..=hi).contains(&v),
+                    "{state:?} {key} = {v} outside [{lo}, {hi}]"
+                );
+            }
+            states.push((state, h["damping_nms_per_rad"].as_f64().unwrap()));
+        }
+        assert_eq!(states.len(), 6);
+        // A new draw per event, not one for the whole drive.
+        assert!(states.windows(2).any(|w| w[0] != w[1]), "{states:?}");
+        // The vehicle's column itself was drawn within the published ranges.
+        let v = VehicleParams::from_toml_file(d.join("vehicle_4242.toml")).unwrap();
+        let cr = shimmy::observer::simulate::ColumnRanges::PUBLISHED;
+        assert!((cr.inertia_kgm2.0..=cr.inertia_kgm2.1).contains(&v.column.inertia_kgm2));
+        assert_ne!(
+            v.column.torsion_bar_nm_per_rad,
+            col.column.torsion_bar_nm_per_rad
+        );
+
+        // 5-DOF: no hands anywhere in the truth.
+        let d5 = base.join("5dof");
+        std::fs::create_dir_all(&d5).unwrap();
+        let mut a5 = args(&[], &d5);
+        a5.events = 2;
+        let (log5, _) = log0(&a5, &d5).unwrap();
+        let t5 = std::fs::read_to_string(log5.with_extension("truth.json")).unwrap();
+        assert!(!t5.contains("\"hands\""));
         std::fs::remove_dir_all(&base).unwrap();
     }
 

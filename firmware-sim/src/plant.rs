@@ -39,6 +39,17 @@ pub trait Plant {
     /// Set the unbalance phases from now on (the wheels rolled different distances, e.g. in a
     /// turn). A plant without them ignores it. Must not allocate.
     fn set_unbalance_phases(&mut self, _phases: [f64; 2]) {}
+    /// Whether the plant has a steering wheel that the driver's hands can hold (the MODEL.md
+    /// §15 column); false by default.
+    fn has_rim(&self) -> bool {
+        false
+    }
+    /// Put the driver's hands `h` on the rim from now on (§15 eq. 6). A plant without a rim
+    /// ignores it. Errors (changing nothing) on a value the plant cannot use. Must not
+    /// allocate.
+    fn set_hands(&mut self, _h: &shimmy::model::Hands) -> anyhow::Result<()> {
+        Ok(())
+    }
     /// Whether each joint (left, right) is in contact at the current step boundary (MODEL.md
     /// §4); `[false; 2]` for a plant without joints.
     fn in_contact(&self) -> [bool; 2] {
@@ -312,6 +323,12 @@ impl Plant for ModelPlant {
     }
     fn set_unbalance_phases(&mut self, phases: [f64; 2]) {
         self.sim.set_unbalance_phases(phases);
+    }
+    fn has_rim(&self) -> bool {
+        self.sim.model().column
+    }
+    fn set_hands(&mut self, h: &shimmy::model::Hands) -> anyhow::Result<()> {
+        Ok(self.sim.set_hands(h)?)
     }
     fn speed_mps(&self) -> f64 {
         self.sim.state()[shimmy::model::rhs::ix::V]

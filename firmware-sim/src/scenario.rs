@@ -63,6 +63,12 @@ pub struct Scenario {
     pub sensors: Sensors,
     #[serde(default)]
     pub faults: Faults,
+    /// The driver's hands on the steering wheel (MODEL.md §15 column only): the prior from
+    /// which each leg of the drive (from the start or a pull-away to the next stop, so each
+    /// braking event) draws off / light / firm grip and its values (docs/COLUMN.md). Absent:
+    /// the vehicle file's hands throughout.
+    #[serde(default)]
+    pub hands: Option<shimmy::observer::simulate::HandsPrior>,
 }
 
 fn default_step_s() -> f64 {
@@ -643,6 +649,9 @@ impl Scenario {
                 1e6,
             )?;
         }
+        if let Some(h) = &self.hands {
+            h.validate()?;
+        }
         Ok(())
     }
 }
@@ -723,6 +732,28 @@ decel_g = 0.5
 
     fn err(text: &str) -> String {
         format!("{:#}", Scenario::parse(text, "test").unwrap_err())
+    }
+
+    /// The `[hands]` prior (docs/COLUMN.md) as `firmware-sim fleet` writes it parses back, and
+    /// a prior that cannot be drawn from is refused with the field named.
+    #[test]
+    fn the_hands_prior_round_trips_and_bad_ones_name_their_field() {
+        let prior = shimmy::observer::simulate::HandsPrior::default();
+        let text = format!("{MINIMAL}{}", crate::fleet::hands_section(&prior).unwrap());
+        assert_eq!(Scenario::parse(&text, "test").unwrap().hands, Some(prior));
+        let mut bad = prior;
+        bad.off.probability = 0.5;
+        let text = format!("{MINIMAL}{}", crate::fleet::hands_section(&bad).unwrap());
+        assert!(err(&text).contains("must sum to 1"), "{}", err(&text));
+        let mut bad = prior;
+        bad.firm.damping_nms_per_rad = (2.0, -1.0);
+        let text = format!("{MINIMAL}{}", crate::fleet::hands_section(&bad).unwrap());
+        assert!(
+            err(&text).contains("hands.firm.damping_nms_per_rad"),
+            "{}",
+            err(&text)
+        );
+        assert!(err(&format!("{MINIMAL}\n[hands]\nsometimes = 1\n")).contains("sometimes"));
     }
 
     #[test]

@@ -27,6 +27,7 @@ use crate::plant::{LaneKeeping, Plant};
 use crate::scenario::{ClearanceMode, PhaseChange, Scenario, Segment};
 use crate::truth::{self, GroundTruth};
 use shimmy::dbc::Database;
+use shimmy::observer::simulate::HandsDraw;
 use shimmy::profile::bus::BusSpec;
 
 /// Rate of the δ_sw trace kept for the ground truth (Hz), MODEL.md §10's output rate.
@@ -61,6 +62,9 @@ struct EventJoints {
     impacts: [u64; 2],
     /// cos(φ_R − φ_L) at brake onset (NaN for a plant without unbalance phases).
     phase_cos: f64,
+    /// The driver's hands on the rim during the event (scenario `[hands]` on a plant with the
+    /// §15 column).
+    hands: Option<HandsDraw>,
 }
 
 /// A running simulation.
@@ -105,6 +109,11 @@ pub struct FirmwareSim<P: Plant> {
     phase_rng: Option<ChaCha8Rng>,
     /// The car was moving at the previous control step (for `phase_rng`).
     moving: bool,
+    /// Draws the driver's hands for each leg of the drive (scenario `[hands]`, plant with a
+    /// rim): at the start and at every pull-away from a stop.
+    hands_rng: Option<ChaCha8Rng>,
+    /// The hands on the rim now (drawn from `hands_rng`).
+    hands_now: Option<HandsDraw>,
 }
 
 impl<P: Plant> FirmwareSim<P> {
@@ -140,6 +149,7 @@ impl<P: Plant> FirmwareSim<P> {
             scenario.seed,
             t0_ns,
         )?;
+        let plant_has_rim = plant.has_rim();
         let ratio_l = plant.steering_ratio() * plant.wheelbase_m();
         let yaw_gain_per_m = if ratio_l.is_finite() && ratio_l > 0.0 {
             1.0 / ratio_l
@@ -208,7 +218,17 @@ impl<P: Plant> FirmwareSim<P> {
                 r
             }),
             moving: false,
+            hands_rng: match &scenario.hands {
+                Some(_) if plant_has_rim => {
+                    let mut r = ChaCha8Rng::seed_from_u64(scenario.seed);
+                    r.set_stream(9);
+                    Some(r)
+                }
+                _ => None,
+            },
+            hands_now: None,
         };
+        sim.new_hands()?;
         sim.lane_rad = sim.lane.step(&mut sim.lane_rng);
         sim.trace.push(sim.plant.steering_wheel_rad());
         sim.contact_prev = sim.contact();
@@ -294,6 +314,7 @@ impl<P: Plant> FirmwareSim<P> {
                     .plant
                     .unbalance_phases()
                     .map_or(f64::NAN, |[l, r]| (r - l).cos()),
+                hands: self.hands_now,
             });
         }
         let braking = self.driver.braking_event();
@@ -320,6 +341,14 @@ impl<P: Plant> FirmwareSim<P> {
         let moving = v1 > shimmy::model::braking::driver::V_STANDSTILL_MPS;
         if self.moving && !moving {
             self.new_phase_at_stop();
+        }
+        if !self.moving && moving && self.steps > self.chunk {
+            // Pulling away from a stop: the next leg's hands.
+            if let Err(e) = self.new_hands() {
+                self.error = Some(format!("{e:#}"));
+                self.done = true;
+                return;
+            }
         }
         self.moving = moving;
         if self.wear_every > 0 && self.steps.is_multiple_of(self.wear_every) {
@@ -355,6 +384,19 @@ impl<P: Plant> FirmwareSim<P> {
         self.plant.set_unbalance_phases([left, right]);
     }
 
+    /// Draws the hands of the next leg of the drive and puts them on the rim (scenario
+    /// `[hands]` on a plant with a rim; nothing otherwise).
+    fn new_hands(&mut self) -> anyhow::Result<()> {
+        let (Some(rng), Some(prior)) = (self.hands_rng.as_mut(), self.scenario.hands.as_ref())
+        else {
+            return Ok(());
+        };
+        let d = prior.draw(rng);
+        self.plant.set_hands(&d.hands)?;
+        self.hands_now = Some(d);
+        Ok(())
+    }
+
     /// Contact flags of the joints that have clearance (an ideal joint never reports contact).
     fn contact(&self) -> [bool; 2] {
         let c = self.plant.in_contact();
@@ -388,8 +430,8 @@ impl<P: Plant> FirmwareSim<P> {
         }
     }
 
-    /// Why the run stopped early, if the plant refused a clearance set by the wear law. The
-    /// binary reports it as an error.
+    /// Why the run stopped early, if the plant refused a clearance set by the wear law or the
+    /// hands drawn for a leg. The binary reports it as an error.
     pub fn error(&self) -> Option<&str> {
         self.error.as_deref()
     }
@@ -418,6 +460,7 @@ impl<P: Plant> FirmwareSim<P> {
                 contact_steps: [0; 2],
                 impacts: [0; 2],
                 phase_cos: f64::NAN,
+                hands: None,
             });
             let frac = |n: u64| n as f64 / j.steps.max(1) as f64;
             events.push(truth::EventTruth {
@@ -433,6 +476,7 @@ impl<P: Plant> FirmwareSim<P> {
                 window_s: window,
                 sw_amplitude_deg: truth::sw_amplitude_deg(&self.trace, TRACE_HZ, window),
                 unbalance_phase_cos: j.phase_cos.is_finite().then_some(j.phase_cos),
+                hands: j.hands,
             });
         }
         let stats = self.bus.stats();

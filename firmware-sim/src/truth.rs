@@ -7,8 +7,9 @@
 //! initial speed, plateau deceleration) with its true steering-wheel shimmy amplitude (MODEL.md
 //! §11: the peak of the 3–25 Hz, 4th-order zero-phase band-passed δ_sw over
 //! `[t_start, t_end + 0.3 s]`, taken from the model's continuous output at 1 kHz, not from the
-//! quantised sensor) and its per-joint contact statistics (MODEL.md §4), and per-message frame
-//! counts.
+//! quantised sensor), its per-joint contact statistics (MODEL.md §4) and, with the §15 column
+//! and a scenario `[hands]` prior, the driver's hands on the rim (state and values), and
+//! per-message frame counts.
 //!
 //! Not here: running the simulation. All times are seconds since the start of the log; add
 //! `start_unix_s` for the frame timestamps.
@@ -112,6 +113,11 @@ pub struct EventTruth {
     /// two unbalance moments add in the steering linkage). Absent for a plant without them.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub unbalance_phase_cos: Option<f64>,
+    /// The driver's hands on the rim during the event (MODEL.md §15 column with a scenario
+    /// `[hands]` prior): the state (`off`, `light`, `firm`) and its inertia, stiffness and
+    /// damping. Absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hands: Option<shimmy::observer::simulate::HandsDraw>,
 }
 
 #[derive(Clone, Debug, Serialize, PartialEq)]

@@ -20,6 +20,6 @@ pub mod sensor;
 pub mod sim;
 pub mod tire;
 
-pub use params::VehicleParams;
+pub use params::{Hands, VehicleParams};
 pub use rhs::{JointMode, Switches};
 pub use sim::{run, Integrator, Outputs, Scenario, Simulator, Trace};

@@ -264,8 +264,21 @@ pub struct Column {
     pub torsion_bar_nm_per_rad: f64,
     /// c_tb: torsion bar damping.
     pub torsion_bar_damping_nms_per_rad: f64,
-    /// c_h: hands-on-rim damping.
+    /// c_h: hands-on-rim damping (the driver's hands and arms plus the column's own).
     pub hands_damping_nms_per_rad: f64,
+    /// J_hands: inertia of the hands and arms coupled to the rim, added to J_sw in eq. (6).
+    /// 0 (the default, §15's "light hands" as damping only) is left out of the serialised
+    /// form, so vehicle files and hashes written before the field existed stay the same.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub hands_inertia_kgm2: f64,
+    /// k_hands: stiffness of the hands and arms on the rim, added to the restraint k_h of
+    /// eq. (6). Default 0, left out of the serialised form like `hands_inertia_kgm2`.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub hands_stiffness_nm_per_rad: f64,
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 impl Default for Column {
@@ -276,7 +289,62 @@ impl Default for Column {
             torsion_bar_nm_per_rad: 114.6,
             torsion_bar_damping_nms_per_rad: 0.02,
             hands_damping_nms_per_rad: 0.3,
+            hands_inertia_kgm2: 0.0,
+            hands_stiffness_nm_per_rad: 0.0,
         }
+    }
+}
+
+/// The driver's hands and arms on the rim as eq. (6) of MODEL.md §15 sees them: an inertia
+/// added to J_sw, a stiffness added to the restraint k_h, and the rim damping c_h. A state that
+/// may change between braking events ([`crate::model::Simulator::set_hands`]); docs/COLUMN.md
+/// gives the ranges of hands off, light and firm grip.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Hands {
+    pub inertia_kgm2: f64,
+    pub stiffness_nm_per_rad: f64,
+    pub damping_nms_per_rad: f64,
+}
+
+impl Hands {
+    /// Checks that every value is finite and >= 0; the error names the `column.hands_*` key.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        for (key, v) in [
+            ("column.hands_inertia_kgm2", self.inertia_kgm2),
+            (
+                "column.hands_stiffness_nm_per_rad",
+                self.stiffness_nm_per_rad,
+            ),
+            ("column.hands_damping_nms_per_rad", self.damping_nms_per_rad),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(ParamError {
+                    key: key.into(),
+                    value: v,
+                    why: "must be finite and >= 0",
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Column {
+    /// The hands on the rim this column's values describe.
+    pub fn hands(&self) -> Hands {
+        Hands {
+            inertia_kgm2: self.hands_inertia_kgm2,
+            stiffness_nm_per_rad: self.hands_stiffness_nm_per_rad,
+            damping_nms_per_rad: self.hands_damping_nms_per_rad,
+        }
+    }
+
+    /// Puts `h` on the rim (no validation; see [`Hands::validate`]).
+    pub fn set_hands(&mut self, h: Hands) {
+        self.hands_inertia_kgm2 = h.inertia_kgm2;
+        self.hands_stiffness_nm_per_rad = h.stiffness_nm_per_rad;
+        self.hands_damping_nms_per_rad = h.damping_nms_per_rad;
     }
 }
 
@@ -532,10 +600,7 @@ impl VehicleParams {
             "column.torsion_bar_damping_nms_per_rad",
             c.torsion_bar_damping_nms_per_rad,
         )?;
-        nonneg(
-            "column.hands_damping_nms_per_rad",
-            c.hands_damping_nms_per_rad,
-        )?;
+        c.hands().validate()?;
         if c.enabled {
             let kg_rp2 = s.restraint_stiffness_n_per_m * s.rack_travel_per_pinion_rad_m.powi(2);
             if kg_rp2 >= c.torsion_bar_nm_per_rad {

@@ -9,7 +9,7 @@
 use super::braking::{front_wheel_force, pitch_accel, Demand};
 use super::geometry::{cross, Trapezoid};
 use super::joint::{hertz_k, ClearanceJoint, IdealJoint, JointForce};
-use super::params::VehicleParams;
+use super::params::{Hands, VehicleParams};
 use super::tire::{MfTables, PureSlip};
 
 /// Number of states: the 16 of MODEL.md §1 plus the two of the §15 column option (held at zero
@@ -303,6 +303,12 @@ pub struct Model {
     pub c_tb: f64,
     pub k_h: f64,
     pub c_h: f64,
+    /// The driver's hands on the rim (added to J_sw and k_h in eq. 6) and the sums eq. (6)
+    /// uses: J_sw + J_hands and k_h + k_hands (with no hands, exactly J_sw and k_h).
+    pub j_hands: f64,
+    pub k_hands: f64,
+    pub j_rim: f64,
+    pub k_rim: f64,
 }
 
 impl Model {
@@ -329,7 +335,8 @@ impl Model {
         let r_p = s.rack_travel_per_pinion_rad_m;
         let c = &p.column;
         let k_tb = c.torsion_bar_nm_per_rad;
-        Self {
+        let k_h = 1.0 / (1.0 / (k_g * r_p * r_p) - 1.0 / k_tb);
+        let mut m = Self {
             geo,
             joint,
             ideal: IdealJoint {
@@ -374,8 +381,33 @@ impl Model {
             j_sw: c.inertia_kgm2,
             k_c: 1.0 / (1.0 / k_tb + 1.0 / (k_t * r_p * r_p)),
             c_tb: c.torsion_bar_damping_nms_per_rad,
-            k_h: 1.0 / (1.0 / (k_g * r_p * r_p) - 1.0 / k_tb),
+            k_h,
             c_h: c.hands_damping_nms_per_rad,
+            j_hands: 0.0,
+            k_hands: 0.0,
+            j_rim: c.inertia_kgm2,
+            k_rim: k_h,
+        };
+        m.set_hands(&c.hands());
+        m
+    }
+
+    /// Puts the driver's hands `h` on the rim (§15 eq. 6): J_sw + J_hands, k_h + k_hands, c_h.
+    /// With zero hands inertia and stiffness the sums are exactly J_sw and k_h.
+    pub fn set_hands(&mut self, h: &Hands) {
+        self.j_hands = h.inertia_kgm2;
+        self.k_hands = h.stiffness_nm_per_rad;
+        self.c_h = h.damping_nms_per_rad;
+        self.j_rim = self.j_sw + self.j_hands;
+        self.k_rim = self.k_h + self.k_hands;
+    }
+
+    /// The hands on the rim.
+    pub fn hands(&self) -> Hands {
+        Hands {
+            inertia_kgm2: self.j_hands,
+            stiffness_nm_per_rad: self.k_hands,
+            damping_nms_per_rad: self.c_h,
         }
     }
 
@@ -664,7 +696,7 @@ impl Model {
             aux.column_torque = tc;
             dy[XD] = (-tc / self.r_p - self.c_g * y[XD] + pin_x) / self.m_t;
             dy[SW] = y[SWD];
-            dy[SWD] = (tc - self.k_h * y[SW] - self.c_h * y[SWD]) / self.j_sw;
+            dy[SWD] = (tc - self.k_rim * y[SW] - self.c_h * y[SWD]) / self.j_rim;
         } else {
             aux.column_torque = 0.0;
             dy[XD] = (-self.k_eq * y[X] - self.c_g * y[XD] + pin_x) / self.m_t;

@@ -8,7 +8,7 @@
 use super::braking::Demand;
 use super::excitation::Excitation;
 use super::integrate::{rk4_dense, rk4_step, rk4_step_shared, StageTires};
-use super::params::VehicleParams;
+use super::params::{Hands, ParamError, VehicleParams};
 use super::rhs::{ix, Aux, JointMode, Model, State, StepCtx, Switches, TireOut, Trig, N};
 use serde::{Deserialize, Serialize};
 
@@ -467,6 +467,27 @@ impl Simulator {
         self.model.set_clearance(&self.params, left_m, right_m);
         self.update_contact_flags();
         Ok(())
+    }
+
+    /// Puts the driver's hands `h` on the rim from now on (MODEL.md §15 eq. 6: inertia added to
+    /// J_sw, stiffness to k_h, damping as c_h), e.g. at the start of a braking event. Without
+    /// the column option the hands are kept but change nothing. Errors (and changes nothing)
+    /// on a value that is not finite or negative. Allocates nothing.
+    pub fn set_hands(&mut self, h: &Hands) -> Result<(), ParamError> {
+        h.validate()?;
+        if *h == self.model.hands() {
+            return Ok(());
+        }
+        // No step taken ahead under the old hands.
+        self.commit_lookahead();
+        self.model.set_hands(h);
+        self.params.column.set_hands(*h);
+        Ok(())
+    }
+
+    /// The driver's hands on the rim in use (§15).
+    pub fn hands(&self) -> Hands {
+        self.model.hands()
     }
 
     /// Radial clearances (left, right) in use.

@@ -8,8 +8,10 @@
 //! of a simulated event and of a measured one are computed by the same code.
 //!
 //! Also here: the nuisance draw of one vehicle ([`perturb`]: unbalance magnitude, ±10 % on the
-//! steering stiffnesses and dampings; [`perturb_vehicle`] adds the road-noise level; unbalance
-//! phase and road-noise realisation come from each event's seed, MODEL.md §7).
+//! steering stiffnesses and dampings, and with the MODEL.md §15 column its rim inertia, torsion
+//! bar stiffness and damping; [`perturb_vehicle`] adds the road-noise level; unbalance phase
+//! and road-noise realisation come from each event's seed, MODEL.md §7), and the driver's
+//! hands on the rim drawn per braking event ([`HandsPrior`], [`event_hands`]; docs/COLUMN.md).
 //!
 //! What it is not: the table builder (that is `shimmy calibrate`) or firmware-sim's drive cycle.
 
@@ -25,7 +27,7 @@ use crate::events::{Detector, Sample};
 use crate::model::braking::driver::{CRUISE_TAU_S, CRUISE_TOL_MPS, JERK_MPS3, V_STANDSTILL_MPS};
 use crate::model::excitation::Excitation;
 use crate::model::rhs::ix;
-use crate::model::{Integrator, Scenario, Simulator, VehicleParams};
+use crate::model::{Hands, Integrator, Scenario, Simulator, VehicleParams};
 
 /// Ranges of the nuisances drawn per simulated vehicle (the table's nuisance prior; recorded in
 /// the table as `prior`).
@@ -38,14 +40,47 @@ pub struct NuisanceRanges {
     pub unbalance_factor: (f64, f64),
     /// Road-noise σ factor range (uniform), drawn by [`perturb_vehicle`] only.
     pub road_noise_factor: (f64, f64),
+    /// Steering wheel and column of a vehicle with the MODEL.md §15 column (J_sw, k_tb, c_tb,
+    /// uniform within these ranges; docs/COLUMN.md); `None`: the nominal column. Not drawn
+    /// for a 5-DOF vehicle. Absent in tables written before it existed: the published ranges;
+    /// not written when it is them (so a default-prior table is byte for byte as before).
+    #[serde(
+        default = "published_column",
+        skip_serializing_if = "is_published_column"
+    )]
+    pub column: Option<ColumnRanges>,
+    /// The driver's hands on the rim, drawn per braking event for a vehicle with the §15
+    /// column ([`HandsPrior`]); `None`: the vehicle's own hands for every event. Absent in
+    /// tables written before it existed: [`HandsPrior::default`]; not written when it is that.
+    #[serde(default = "default_hands", skip_serializing_if = "is_default_hands")]
+    pub hands: Option<HandsPrior>,
+}
+
+fn is_published_column(c: &Option<ColumnRanges>) -> bool {
+    *c == published_column()
+}
+
+fn is_default_hands(h: &Option<HandsPrior>) -> bool {
+    *h == default_hands()
+}
+
+fn published_column() -> Option<ColumnRanges> {
+    Some(ColumnRanges::PUBLISHED)
+}
+
+fn default_hands() -> Option<HandsPrior> {
+    Some(HandsPrior::default())
 }
 
 impl NuisanceRanges {
-    /// No nuisance: every drawn vehicle is the nominal one (`shimmy calibrate --exact-vehicle`).
+    /// No nuisance: every drawn vehicle is the nominal one (`shimmy calibrate --exact-vehicle`),
+    /// its hands those of its vehicle file at every event.
     pub const NONE: NuisanceRanges = NuisanceRanges {
         stiffness_damping_rel: 0.0,
         unbalance_factor: (1.0, 1.0),
         road_noise_factor: (1.0, 1.0),
+        column: None,
+        hands: None,
     };
 }
 
@@ -55,8 +90,217 @@ impl Default for NuisanceRanges {
             stiffness_damping_rel: 0.10,
             unbalance_factor: (0.5, 2.0),
             road_noise_factor: (0.7, 1.4),
+            column: published_column(),
+            hands: default_hands(),
         }
     }
+}
+
+/// Ranges of the steering wheel and column drawn per vehicle (MODEL.md §15; the sources are in
+/// docs/COLUMN.md). Each value is drawn uniformly in `(low, high)`.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ColumnRanges {
+    /// J_sw: rim + column inertia (kg·m²).
+    pub inertia_kgm2: (f64, f64),
+    /// k_tb: EPS torsion bar stiffness (N·m/rad).
+    pub torsion_bar_nm_per_rad: (f64, f64),
+    /// c_tb: torsion bar damping (N·m·s/rad).
+    pub torsion_bar_damping_nms_per_rad: (f64, f64),
+}
+
+impl ColumnRanges {
+    /// docs/COLUMN.md: J_sw 0.03–0.05 kg·m², k_tb 1–3 N·m/° (57.3–171.9 N·m/rad), c_tb
+    /// 0.01–0.05 N·m·s/rad.
+    pub const PUBLISHED: ColumnRanges = ColumnRanges {
+        inertia_kgm2: (0.03, 0.05),
+        torsion_bar_nm_per_rad: (57.3, 171.9),
+        torsion_bar_damping_nms_per_rad: (0.01, 0.05),
+    };
+
+    /// Rejects ranges that cannot be drawn from; the message names the field.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        for (key, (lo, hi), min) in [
+            ("column.inertia_kgm2", self.inertia_kgm2, f64::MIN_POSITIVE),
+            (
+                "column.torsion_bar_nm_per_rad",
+                self.torsion_bar_nm_per_rad,
+                f64::MIN_POSITIVE,
+            ),
+            (
+                "column.torsion_bar_damping_nms_per_rad",
+                self.torsion_bar_damping_nms_per_rad,
+                0.0,
+            ),
+        ] {
+            check_range(key, lo, hi, min)?;
+        }
+        Ok(())
+    }
+}
+
+fn check_range(key: &str, lo: f64, hi: f64, min: f64) -> anyhow::Result<()> {
+    if !(lo.is_finite() && hi.is_finite() && lo >= min && hi >= lo) {
+        bail!(
+            "{key}: must be [low, high] with {} low <= high (got [{lo}, {hi}])",
+            if min > 0.0 { "0 <" } else { "0 <=" }
+        );
+    }
+    Ok(())
+}
+
+/// How the driver holds the steering wheel during one braking event.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HandsState {
+    /// No hand on the rim: only the column's own damping.
+    Off,
+    /// A relaxed grip.
+    Light,
+    /// A firm, co-contracted grip (arms stiffened).
+    Firm,
+}
+
+/// One hands state's probability and the ranges its values are drawn from (uniform).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HandsRange {
+    pub probability: f64,
+    pub inertia_kgm2: (f64, f64),
+    pub stiffness_nm_per_rad: (f64, f64),
+    pub damping_nms_per_rad: (f64, f64),
+}
+
+/// The prior of the driver's hands per braking event: which state (off, light, firm grip)
+/// with which probability, and the ranges of its inertia, stiffness and damping at the rim
+/// (MODEL.md §15 eq. 6). Defaults and their reasons: docs/COLUMN.md.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HandsPrior {
+    pub off: HandsRange,
+    pub light: HandsRange,
+    pub firm: HandsRange,
+}
+
+impl Default for HandsPrior {
+    fn default() -> Self {
+        HandsPrior {
+            off: HandsRange {
+                probability: 0.15,
+                inertia_kgm2: (0.0, 0.0),
+                stiffness_nm_per_rad: (0.0, 0.0),
+                damping_nms_per_rad: (0.03, 0.1),
+            },
+            light: HandsRange {
+                probability: 0.60,
+                inertia_kgm2: (0.01, 0.05),
+                stiffness_nm_per_rad: (0.0, 5.0),
+                damping_nms_per_rad: (0.2, 0.6),
+            },
+            firm: HandsRange {
+                probability: 0.25,
+                inertia_kgm2: (0.05, 0.12),
+                stiffness_nm_per_rad: (10.0, 40.0),
+                damping_nms_per_rad: (0.8, 2.0),
+            },
+        }
+    }
+}
+
+/// The hands of one braking event: the state drawn and its values.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct HandsDraw {
+    pub state: HandsState,
+    #[serde(flatten)]
+    pub hands: Hands,
+}
+
+/// ChaCha stream of the per-event hands draw of [`event_hands`].
+const HANDS_STREAM: u64 = 13;
+/// Added to the vehicle's stream for the column draw of [`perturb`].
+const COLUMN_STREAM_OFFSET: u64 = 0xC01;
+
+impl HandsPrior {
+    /// Each state's range.
+    pub fn range(&self, s: HandsState) -> &HandsRange {
+        match s {
+            HandsState::Off => &self.off,
+            HandsState::Light => &self.light,
+            HandsState::Firm => &self.firm,
+        }
+    }
+
+    /// Rejects a prior that cannot be drawn from: probabilities finite, >= 0 and summing to 1
+    /// (±1e-6), every range [low, high] with 0 <= low <= high. The message names the field.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        let mut sum = 0.0;
+        for (name, r) in [
+            ("off", &self.off),
+            ("light", &self.light),
+            ("firm", &self.firm),
+        ] {
+            if !(r.probability.is_finite() && r.probability >= 0.0) {
+                bail!(
+                    "hands.{name}.probability: must be finite and >= 0 (got {})",
+                    r.probability
+                );
+            }
+            sum += r.probability;
+            check_range(
+                &format!("hands.{name}.inertia_kgm2"),
+                r.inertia_kgm2.0,
+                r.inertia_kgm2.1,
+                0.0,
+            )?;
+            check_range(
+                &format!("hands.{name}.stiffness_nm_per_rad"),
+                r.stiffness_nm_per_rad.0,
+                r.stiffness_nm_per_rad.1,
+                0.0,
+            )?;
+            check_range(
+                &format!("hands.{name}.damping_nms_per_rad"),
+                r.damping_nms_per_rad.0,
+                r.damping_nms_per_rad.1,
+                0.0,
+            )?;
+        }
+        if (sum - 1.0).abs() > 1e-6 {
+            bail!("hands.*.probability: must sum to 1 (got {sum})");
+        }
+        Ok(())
+    }
+
+    /// Draws one event's hands: the state by its probability, then inertia, stiffness and
+    /// damping uniformly within the state's ranges (always four draws from `rng`).
+    pub fn draw<R: Rng>(&self, rng: &mut R) -> HandsDraw {
+        let u: f64 = rng.random();
+        let state = if u < self.off.probability {
+            HandsState::Off
+        } else if u < self.off.probability + self.light.probability {
+            HandsState::Light
+        } else {
+            HandsState::Firm
+        };
+        let r = self.range(state);
+        let mut pick = |(lo, hi): (f64, f64)| lo + rng.random::<f64>() * (hi - lo);
+        HandsDraw {
+            state,
+            hands: Hands {
+                inertia_kgm2: pick(r.inertia_kgm2),
+                stiffness_nm_per_rad: pick(r.stiffness_nm_per_rad),
+                damping_nms_per_rad: pick(r.damping_nms_per_rad),
+            },
+        }
+    }
+}
+
+/// The hands of the braking event with `seed` (its own ChaCha stream of the seed, so the
+/// event's other draws are unchanged): what `shimmy calibrate`'s model events use.
+pub fn event_hands(prior: &HandsPrior, seed: u64) -> HandsDraw {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(HANDS_STREAM);
+    prior.draw(&mut rng)
 }
 
 /// One whole nuisance vehicle (the nuisances are properties of a vehicle, shared by
@@ -113,7 +357,9 @@ impl EventShape {
 
 /// A vehicle like `nominal` with nuisances drawn from `rng`: each steering stiffness and
 /// damping (k_s, c_s, k_t, k_g, c_g) scaled by an independent uniform factor in ±rel, and the
-/// unbalance scaled by a log-uniform factor.
+/// unbalance scaled by a log-uniform factor. With the §15 column enabled, also J_sw, k_tb and
+/// c_tb within `r.column` (from a copy of `rng` on another stream, so the draws of a 5-DOF
+/// vehicle and whatever `rng` gives afterwards are the same with or without the column).
 pub fn perturb(nominal: &VehicleParams, r: &NuisanceRanges, rng: &mut ChaCha8Rng) -> VehicleParams {
     let mut p = nominal.clone();
     let mut f = |x: &mut f64| *x *= 1.0 + rng.random_range(-1.0..=1.0) * r.stiffness_damping_rel;
@@ -126,6 +372,17 @@ pub fn perturb(nominal: &VehicleParams, r: &NuisanceRanges, rng: &mut ChaCha8Rng
     let (lo, hi) = r.unbalance_factor;
     let u = (lo.ln() + rng.random::<f64>() * (hi.ln() - lo.ln())).exp();
     p.excitation.unbalance_kgm *= u;
+    if let (true, Some(cr)) = (p.column.enabled, &r.column) {
+        // From a copy of `rng` on another stream: `rng` itself (and so whatever the caller
+        // draws next) is left as for a vehicle without the column.
+        let mut crng = rng.clone();
+        crng.set_stream(rng.get_stream().wrapping_add(COLUMN_STREAM_OFFSET));
+        let mut pick = |(lo, hi): (f64, f64)| lo + crng.random::<f64>() * (hi - lo);
+        let c = &mut p.column;
+        c.inertia_kgm2 = pick(cr.inertia_kgm2);
+        c.torsion_bar_nm_per_rad = pick(cr.torsion_bar_nm_per_rad);
+        c.torsion_bar_damping_nms_per_rad = pick(cr.torsion_bar_damping_nms_per_rad);
+    }
     p
 }
 
@@ -156,6 +413,9 @@ pub struct ModelRun {
     pub pedal: Vec<bool>,
     /// cos(φ_R − φ_L) of the run's unbalance phases (MODEL.md §7).
     pub phase_cos: f64,
+    /// The driver's hands drawn for this run's speed ([`event_hands`] of its seed), when
+    /// [`run_model_grid`] was given a hands prior and the vehicle has the §15 column.
+    pub hands: Option<HandsDraw>,
 }
 
 /// Time the model keeps running after the speed falls below the detector's stop speed, beyond
@@ -348,6 +608,11 @@ pub struct GridRuns {
 /// [`RUN_OUT_S`] after the speed falls below the detector's stop speed, after which nothing can
 /// reach the features. `EventShape::Single` (MODEL.md §6's own event, whose deceleration is
 /// part of the scenario) runs every event on its own, seeded by `seeds[i]`.
+///
+/// With a `hands` prior and the §15 column enabled on `p`, each speed's run puts the driver's
+/// hands drawn from `seeds[i]` ([`event_hands`]) on the rim where it starts or branches off
+/// the trunk, so they hold through its cruise and braking (and its decelerations share them,
+/// as they share their pre-brake history). Without: the hands of `p` throughout.
 #[allow(clippy::too_many_arguments)]
 pub fn run_model_grid(
     p: &VehicleParams,
@@ -357,7 +622,21 @@ pub fn run_model_grid(
     seeds: &[u64],
     shape: EventShape,
     cfg: &ObserverConfig,
+    hands: Option<&HandsPrior>,
 ) -> anyhow::Result<GridRuns> {
+    let hands = hands.filter(|_| p.column.enabled);
+    if let Some(h) = hands {
+        h.validate().context("hands prior")?;
+    }
+    // Puts the hands of `seed` on `b`'s rim and records them.
+    let put_hands = |b: &mut Branch, seed: u64| -> anyhow::Result<()> {
+        if let Some(prior) = hands {
+            let d = event_hands(prior, seed);
+            b.sim.set_hands(&d.hands).context("drawn hands")?;
+            b.out.hands = Some(d);
+        }
+        Ok(())
+    };
     if seeds.len() != speeds_mps.len() {
         bail!(
             "{} seeds for {} speeds: one per speed",
@@ -474,6 +753,7 @@ pub fn run_model_grid(
                 speed_mps: Vec::with_capacity(n),
                 pedal: Vec::with_capacity(n),
                 phase_cos: (phi_r - phi_l).cos(),
+                hands: None,
             },
             k: 0,
             below_stop: None,
@@ -492,11 +772,14 @@ pub fn run_model_grid(
                         .map(|&d| {
                             let mut b = start(v0, seed)?;
                             b.sim = Simulator::new(p, &scenario(v0, d, seed))?;
+                            put_hands(&mut b, seed)?;
                             Ok(runner.brake_branches(b, &[d], &what(v0))?.remove(0))
                         })
                         .collect()
                 } else {
-                    runner.brake_branches(start(v0, seed)?, decels_g, &what(v0))
+                    let mut b = start(v0, seed)?;
+                    put_hands(&mut b, seed)?;
+                    runner.brake_branches(b, decels_g, &what(v0))
                 }
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
@@ -509,6 +792,7 @@ pub fn run_model_grid(
     let mut order: Vec<usize> = (0..speeds_mps.len()).collect();
     order.sort_by(|&a, &b| speeds_mps[a].total_cmp(&speeds_mps[b]));
     let mut trunk = start(vmax, seeds[0])?;
+    put_hands(&mut trunk, seeds[0])?;
     let mut out: Vec<Option<Vec<ModelRun>>> = vec![None; speeds_mps.len()];
     for &i in &order {
         let v0 = speeds_mps[i];
@@ -519,6 +803,7 @@ pub fn run_model_grid(
         law.v0_mps = v0;
         b.sim.set_unbalance_phases(Excitation::phases_of(seeds[i]));
         b.sim.reseed_noise(seeds[i]);
+        put_hands(&mut b, seeds[i])?;
         let [phi_l, phi_r] = b.sim.unbalance_phases();
         b.out.phase_cos = (phi_r - phi_l).cos();
         out[i] = Some(runner.brake_branches(b, decels_g, &what(v0))?);
@@ -533,7 +818,7 @@ pub fn run_model_grid(
 }
 
 /// [`run_model_grid`] for one initial speed: one braking per deceleration in `decels_g`, all
-/// from the same pull-away and cruise, seeded by `seed`.
+/// from the same pull-away and cruise, seeded by `seed`, with the hands of `p` (no hands draw).
 pub fn run_model(
     p: &VehicleParams,
     clearance_m: f64,
@@ -543,11 +828,18 @@ pub fn run_model(
     shape: EventShape,
     cfg: &ObserverConfig,
 ) -> anyhow::Result<Vec<ModelRun>> {
-    Ok(
-        run_model_grid(p, clearance_m, &[v0_mps], decels_g, &[seed], shape, cfg)?
-            .runs
-            .remove(0),
-    )
+    Ok(run_model_grid(
+        p,
+        clearance_m,
+        &[v0_mps],
+        decels_g,
+        &[seed],
+        shape,
+        cfg,
+        None,
+    )?
+    .runs
+    .remove(0))
 }
 
 /// Runs one braking event at (`clearance_m`, `v0_mps`, `decel_g`) with `seed` on vehicle `p`,

@@ -30,7 +30,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::model::VehicleParams;
 use crate::observer::sensor::SensorModel;
-use crate::observer::simulate::NuisanceRanges;
+use crate::observer::simulate::{ColumnRanges, HandsPrior, NuisanceRanges};
 use crate::observer::table::{vehicle_hash, ResponseTable};
 use crate::signals::mapping::MappingConfig;
 
@@ -91,14 +91,25 @@ pub struct PriorSection {
     pub unbalance_factor: [f64; 2],
     /// Road-noise factor range (uniform).
     pub road_noise_factor: [f64; 2],
+    /// `[chassis.prior.column]`: ranges of J_sw, k_tb, c_tb drawn per vehicle when the chassis
+    /// has the MODEL.md §15 column; absent: docs/COLUMN.md's published ranges.
+    #[serde(default)]
+    pub column: Option<ColumnRanges>,
+    /// `[chassis.prior.hands]`: the driver's hands per braking event (off / light / firm);
+    /// absent: docs/COLUMN.md's defaults.
+    #[serde(default)]
+    pub hands: Option<HandsPrior>,
 }
 
 impl From<PriorSection> for NuisanceRanges {
     fn from(p: PriorSection) -> NuisanceRanges {
+        let d = NuisanceRanges::default();
         NuisanceRanges {
             stiffness_damping_rel: p.stiffness_damping_rel,
             unbalance_factor: (p.unbalance_factor[0], p.unbalance_factor[1]),
             road_noise_factor: (p.road_noise_factor[0], p.road_noise_factor[1]),
+            column: p.column.or(d.column),
+            hands: p.hands.or(d.hands),
         }
     }
 }
@@ -431,6 +442,12 @@ pub fn check_prior(r: &NuisanceRanges) -> anyhow::Result<()> {
             "chassis.prior.road_noise_factor: must be [low, high] with 0 < low <= high (got {:?})",
             r.road_noise_factor
         );
+    }
+    if let Some(c) = &r.column {
+        c.validate().context("chassis.prior")?;
+    }
+    if let Some(h) = &r.hands {
+        h.validate().context("chassis.prior")?;
     }
     Ok(())
 }

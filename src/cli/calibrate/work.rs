@@ -103,6 +103,7 @@ pub fn run_job(
         &seeds,
         grid.shape,
         cfg,
+        grid.ranges.hands.as_ref(),
     )
     .with_context(|| format!("model runs of vehicle {} at {c_mm} mm", j.im))?
     .runs;
