@@ -4,7 +4,7 @@
 //! its docs/COLUMN.md range). Amplitudes: peak of the 3–25 Hz, 4th-order zero-phase
 //! band-passed signal over the braking window (as §15's table). Prints a Markdown table.
 //!
-//!   cargo run --release --example column_hands [-- SEEDS]
+//!   cargo run --release -p firmware-sim --example column_hands [-- SEEDS]
 
 use shimmy::analysis::{peak_abs, Bandpass};
 use shimmy::model::{run, Hands, JointMode, Scenario, VehicleParams};
