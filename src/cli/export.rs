@@ -114,8 +114,9 @@ pub struct FailedLog {
 /// Exports as `shimmy export` does, without printing the summary: logs that fail are listed in
 /// [`ExportSummary::failed`] (and reported on stderr), not an error; an error is a run that
 /// could not start (bad vehicle ID, profile, settings, lake folder) or a monitor file that
-/// could not be written. `progress`: a progress bar on stderr (hidden when not a terminal).
-pub fn export(args: &Args, progress: bool) -> anyhow::Result<ExportSummary> {
+/// could not be written. `progress`: a progress bar on stderr (hidden when not a terminal);
+/// `signals`: false writes only the monitor's tables ([`Exporter::without_signals`]).
+pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<ExportSummary> {
     crate::lake::check_vehicle_id(&args.vehicle)?;
     let cfg = match &args.config {
         Some(p) => ObserverConfig::load(p)?,
@@ -167,6 +168,9 @@ pub fn export(args: &Args, progress: bool) -> anyhow::Result<ExportSummary> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create the lake {}", args.out.display()))?;
     let mut ex = Exporter::new(args.out.clone(), inputs, run.clone(), pipe)?;
+    if !signals {
+        ex = ex.without_signals();
+    }
 
     let bar = if progress {
         indicatif::ProgressBar::new(hashed.len() as u64)
@@ -229,7 +233,7 @@ pub fn export(args: &Args, progress: bool) -> anyhow::Result<ExportSummary> {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let s = export(&args, true)?;
+    let s = export(&args, true, true)?;
     println!(
         "{TOOL}: {} of {} logs exported to {} ({} frames, {} mapped, {} files written; run {}); \
          {} braking events, {} alerts standing",
