@@ -81,8 +81,8 @@ def decode(log: Union[PathLike, Sequence[PathLike]], dbc: PathLike):
         ==========  =========================  ==========================================
 
         Left out, as the CLI leaves them out: IDs the DBC does not define, remote and error
-        frames, frames whose multiplexer value selects nothing. Batches hold at most 65,536
-        rows and are decoded as they are read, so memory does not grow with the log.
+        frames, frames whose multiplexer value selects nothing. A batch closes at the first frame
+        boundary from 65,536 rows on (a frame's signals are never split), and batches are decoded as they are read, so memory does not grow with the log.
         ``reader.read_all()`` gives a Table, ``reader.read_pandas()`` a DataFrame.
     :raises ShimmyError: the DBC does not load, or a log is missing or not a CAN log. A log
         that breaks while being read raises from the reader (``pyarrow.ArrowException``/
@@ -174,13 +174,14 @@ def events(
     reads its ``events`` table back, so the rows and columns are exactly the lake's (``t``,
     ``t_start_s``, ``t_end_s``, ``v0_kmh``, ``decel_g``, ``peak_sw_bp_deg``,
     ``sw_amplitude_deg``, ``used``, ``unused_reason``, ``odometer_km`` and the provenance
-    columns), plus the partition columns ``vehicle`` and ``date`` (string), sorted by ``t``.
+    columns), plus the partition columns ``vehicle`` and ``date`` (string), in the run's order
+    (the logs' order, then the events' within a log: the order of ``estimate()["events"]``).
 
     :returns: a ``pyarrow.Table`` (empty, with the schema, when no event was recorded).
     :raises ShimmyError: as :func:`export`, and when any log failed (the reasons listed).
     """
     import pyarrow as pa
-    import pyarrow.dataset as ds
+    import pyarrow.parquet as pq
 
     with tempfile.TemporaryDirectory(prefix="shimmy-events-") as tmp:
         s = export(logs, profile, vehicle, tmp, config=config, signals=False)
@@ -189,13 +190,22 @@ def events(
                 "; ".join(f"{f['log']}: {f['reason']}" for f in s["failed"])
             )
         root = os.path.join(tmp, "events")
-        if not os.path.isdir(root):
+        # events/vehicle=V/date=D/<run16>-<nnnn>.parquet: the run's order is the log position
+        # nnnn (and within a log, the date), not the timestamp (two logs may overlap in time).
+        files = []
+        for dirpath, _, names in os.walk(root):
+            for n in names:
+                if n.endswith(".parquet") and not n.startswith("."):
+                    date = os.path.basename(dirpath).split("=", 1)[1]
+                    files.append((n.rsplit("-", 1)[1], date, os.path.join(dirpath, n)))
+        if not files:
             return _empty_events()
-        part = ds.partitioning(
-            pa.schema([("vehicle", pa.string()), ("date", pa.string())]), flavor="hive"
-        )
-        t = ds.dataset(root, format="parquet", partitioning=part).to_table()
-        return t.sort_by("t")
+        parts = []
+        for _, date, path in sorted(files):
+            t = pq.read_table(path)
+            t = t.append_column("vehicle", pa.array([vehicle] * t.num_rows, pa.string()))
+            parts.append(t.append_column("date", pa.array([date] * t.num_rows, pa.string())))
+        return pa.concat_tables(parts)
 
 
 def _empty_events():

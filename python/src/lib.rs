@@ -56,7 +56,8 @@ fn guarded<T: Send>(py: Python<'_>, f: impl FnOnce() -> anyhow::Result<T> + Send
     }
 }
 
-/// Rows per record batch of `decode` (bounded memory: one batch is built at a time).
+/// Rows from which a record batch of `decode` closes, at the next frame boundary (bounded
+/// memory: one batch is built at a time).
 const BATCH_ROWS: usize = 65_536;
 
 /// The schema of `decode`: one row per decoded signal, as `shimmy decode --format csv` prints.
@@ -75,8 +76,8 @@ fn decode_schema() -> SchemaRef {
     ]))
 }
 
-/// The logs' frames decoded with a DBC, streamed as record batches of at most [`BATCH_ROWS`]
-/// rows; the same frames and values as `shimmy decode` (src/cli/decode.rs): data frames whose
+/// The logs' frames decoded with a DBC, streamed as record batches of [`BATCH_ROWS`] rows and
+/// the rest of the frame that reached it; the same frames and values as `shimmy decode` (src/cli/decode.rs): data frames whose
 /// ID the DBC defines, frames whose multiplexer value selects nothing left out.
 struct DecodeStream {
     db: Database,
