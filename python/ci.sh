@@ -20,7 +20,7 @@ VENV=$ROOT/target/py-venv
 PIP_CACHE=$ROOT/target/ci-tools/pip
 WHEELS=$ROOT/target/py-wheels
 PY=${PYTHON:-python3}
-NEEDS=(maturin pytest pyarrow duckdb pyspark pandas)
+NEEDS=("maturin>=1.5,<2" pytest pyarrow duckdb "pyspark>=3.5" "pandas>=2,<3")
 
 log() { echo "python/ci.sh: $*" >&2; }
 die() { echo "python/ci.sh: error: $*" >&2; exit 1; }

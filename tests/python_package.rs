@@ -22,6 +22,19 @@ fn skip_or_fail(why: &str) {
     eprintln!("SKIPPED python_package: {why}");
 }
 
+/// `cmd` without the variables cargo sets for a test (CARGO_*, but CARGO_HOME): seen by the
+/// wheel's cargo build, they would make build scripts rerun and the wheel rebuild from scratch
+/// instead of reusing what `python/ci.sh --prepare` (.ci/run) built.
+fn clean(mut cmd: Command) -> Command {
+    for (k, _) in std::env::vars_os() {
+        let k = k.to_string_lossy().into_owned();
+        if k.starts_with("CARGO") && k != "CARGO_HOME" {
+            cmd.env_remove(k);
+        }
+    }
+    cmd
+}
+
 #[test]
 fn python_package_matches_the_cli_and_runs_the_fleet_job() {
     let root = e2e_common::workspace();
@@ -42,7 +55,7 @@ fn python_package_matches_the_cli_and_runs_the_fleet_job() {
         ));
     }
     // The environment first (a separate step, so that no network outside CI is a skip).
-    let venv = Command::new("bash")
+    let venv = clean(Command::new("bash"))
         .arg(&script)
         .arg("--venv")
         .status()
@@ -50,7 +63,7 @@ fn python_package_matches_the_cli_and_runs_the_fleet_job() {
     if !venv.success() {
         return skip_or_fail("python/ci.sh --venv failed (pip install: no network?)");
     }
-    let out = Command::new("bash")
+    let out = clean(Command::new("bash"))
         .arg(&script)
         .arg("--test")
         .arg("-q")
