@@ -119,8 +119,8 @@ impl DecodeStream {
                 let Some(p) = self.logs.pop_front() else {
                     return Ok(());
                 };
-                let r = LogReader::open(&p)
-                    .with_context(|| format!("opening log {}", p.display()))?;
+                let r =
+                    LogReader::open(&p).with_context(|| format!("opening log {}", p.display()))?;
                 self.cur = Some((p, r));
             }
             let (path, src) = self.cur.as_mut().expect("set above");

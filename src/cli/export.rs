@@ -251,7 +251,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         for f in &s.failed {
             eprintln!("{TOOL}: failed: {}: {}", f.log.display(), f.reason);
         }
-        bail!("{} of {} logs failed (listed above)", s.failed.len(), s.logs);
+        bail!(
+            "{} of {} logs failed (listed above)",
+            s.failed.len(),
+            s.logs
+        );
     }
     Ok(())
 }
