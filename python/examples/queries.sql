@@ -34,7 +34,9 @@ ORDER BY vehicle;
 
 -- name: clearance_trend
 -- Clearance trend per vehicle: the estimate after each braking event of the current run, and
--- the least-squares slope of the posterior median over the odometer (mm per 1000 km).
+-- the least-squares slope of the posterior median over the odometer (mm per 1000 km; null
+-- where fewer than two estimates were detectable). first/last: of the first and last event, null
+-- when that estimate was not detectable (arg_*_null keeps nulls).
 WITH runs AS (
     SELECT DISTINCT vehicle, run_sha256 FROM read_parquet('{lake}/fleet_estimates/*.parquet')
 ),
@@ -48,9 +50,9 @@ est AS (
 )
 SELECT vehicle,
        count(*) AS estimates,
-       arg_min(clearance_mm, t_event_end_s) AS first_clearance_mm,
-       arg_max(clearance_mm, t_event_end_s) AS last_clearance_mm,
-       arg_max(detectable, t_event_end_s) AS last_detectable,
+       arg_min_null(clearance_mm, t_event_end_s) AS first_clearance_mm,
+       arg_max_null(clearance_mm, t_event_end_s) AS last_clearance_mm,
+       arg_max_null(detectable, t_event_end_s) AS last_detectable,
        max(events_used) AS events_used,
        1000 * regr_slope(clearance_mm, odometer_km) AS slope_mm_per_1000km
 FROM est
