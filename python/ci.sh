@@ -29,7 +29,7 @@ check() {
     local missing=()
     command -v "$PY" >/dev/null || missing+=("$PY")
     "$PY" -c 'import venv, ensurepip' 2>/dev/null || missing+=("python3 venv/ensurepip (apt: python3-venv)")
-    command -v java >/dev/null || missing+=("java (apt: openjdk-17-jre-headless)")
+    command -v java >/dev/null || missing+=("java (apt: default-jre-headless, OpenJDK 17 on Debian 12)")
     if ((${#missing[@]})); then
         echo "missing: ${missing[*]}"
         return 1
