@@ -205,7 +205,20 @@ struct Output<'a> {
     report: &'a Estimation,
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
+/// The JSON document `shimmy estimate --format json` prints for `profile` and `est`: the
+/// profile's name (null for a custom --mapping setup) and the flattened [`Estimation`]. The
+/// Python package (`shimmy_monitor.estimate`) returns exactly this document.
+pub fn output_json(profile: Option<&Profile>, est: &Estimation) -> serde_json::Result<String> {
+    serde_json::to_string_pretty(&Output {
+        profile: profile.map(|p| p.name.as_str()),
+        report: est,
+    })
+}
+
+/// Everything `shimmy estimate` does but printing: the car (profile, mapping, DBC, table) as the
+/// arguments say, then [`estimate_files`] over the logs. Returns the profile used (none for a
+/// custom --mapping setup), the estimation and the run counters.
+pub fn evaluate(args: &Args) -> anyhow::Result<(Option<Profile>, Estimation, RunStats)> {
     let cfg = match &args.config {
         Some(p) => ObserverConfig::load(p)?,
         None => ObserverConfig::default(),
@@ -248,17 +261,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.dbc.clone(),
         ),
     };
-    let cfg_events = cfg.events.clone();
     let (report, stats) = estimate_files(&mapping_path, dbc.as_deref(), table, cfg, &args.logs)?;
+    Ok((profile, report, stats))
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let cfg_events = match &args.config {
+        Some(p) => ObserverConfig::load(p)?.events,
+        None => ObserverConfig::default().events,
+    };
+    let (profile, report, stats) = evaluate(&args)?;
     let mut out = std::io::stdout().lock();
     match args.format {
         Format::Json => {
-            let o = Output {
-                profile: profile.as_ref().map(|p| p.name.as_str()),
-                report: &report,
-            };
-            serde_json::to_writer_pretty(&mut out, &o)?;
-            writeln!(out)?;
+            writeln!(out, "{}", output_json(profile.as_ref(), &report)?)?;
         }
         Format::Text => {
             if let Some(p) = &profile {

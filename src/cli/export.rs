@@ -9,6 +9,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 
+use crate::cli::estimate::Estimation;
 use crate::lake::{run_sha256, sha256_bytes, sha256_file, Exporter, Inputs};
 use crate::observer::ObserverConfig;
 use crate::pipeline::feeder::Offline;
@@ -73,13 +74,56 @@ pub struct Args {
 
 const TOOL: &str = "shimmy export";
 
-pub fn run(args: Args) -> anyhow::Result<()> {
+/// What one `shimmy export` run did (the CLI prints it; the Python package returns it as a
+/// dict).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ExportSummary {
+    /// The lake's root folder.
+    pub lake: PathBuf,
+    /// The vehicle ID.
+    pub vehicle: String,
+    /// The profile's name.
+    pub profile: String,
+    /// The run's hash (`run_sha256` of every row).
+    pub run_sha256: String,
+    /// Logs given, and exported without error.
+    pub logs: usize,
+    pub logs_exported: usize,
+    /// Every log that failed, with the reason (its error chain).
+    pub failed: Vec<FailedLog>,
+    /// Frames read from the exported logs, and frames of mapped messages over the run.
+    pub frames: u64,
+    pub mapped_frames: u64,
+    /// Files written (renamed into place), signal and monitor files.
+    pub files_written: usize,
+    /// Braking events recorded and alerts standing at the end of the run.
+    pub events: usize,
+    pub alerts_standing: usize,
+    /// The estimate at the end of the run: what `shimmy estimate` gives over the logs that
+    /// reached the monitor (the same pipeline, the same order).
+    pub estimation: Estimation,
+}
+
+/// A log `shimmy export` could not export, and why.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct FailedLog {
+    pub log: PathBuf,
+    pub reason: String,
+}
+
+/// Exports as `shimmy export` does, without printing the summary: logs that fail are listed in
+/// [`ExportSummary::failed`] (and reported on stderr), not an error; an error is a run that
+/// could not start (bad vehicle ID, profile, settings, lake folder) or a monitor file that
+/// could not be written. `progress`: a progress bar on stderr (hidden when not a terminal);
+/// `signals`: false writes only the monitor's tables ([`Exporter::without_signals`]).
+pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<ExportSummary> {
     crate::lake::check_vehicle_id(&args.vehicle)?;
     let cfg = match &args.config {
         Some(p) => ObserverConfig::load(p)?,
         None => ObserverConfig::default(),
     };
     let profile = Profile::load(&args.profile)?;
+    let profile_name = profile.name.clone();
     let table = profile.load_table()?;
     let table_sha256 = match (&table, &profile.table_path) {
         (Some(_), Some(p)) => Some(sha256_file(p)?),
@@ -108,12 +152,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )?;
 
     // Every log's hash first: the monitor's files are named by the whole run.
-    let mut failed: Vec<(PathBuf, String)> = Vec::new();
+    let mut failed: Vec<FailedLog> = Vec::new();
     let mut hashed = Vec::new();
     for log in &args.logs {
         match sha256_file(log) {
             Ok(h) => hashed.push((log.clone(), h)),
-            Err(e) => failed.push((log.clone(), format!("{e:#}"))),
+            Err(e) => failed.push(FailedLog {
+                log: log.clone(),
+                reason: format!("{e:#}"),
+            }),
         }
     }
     let shas: Vec<String> = hashed.iter().map(|(_, h)| h.clone()).collect();
@@ -121,8 +168,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create the lake {}", args.out.display()))?;
     let mut ex = Exporter::new(args.out.clone(), inputs, run.clone(), pipe)?;
+    if !signals {
+        ex = ex.without_signals();
+    }
 
-    let bar = indicatif::ProgressBar::new(hashed.len() as u64);
+    let bar = if progress {
+        indicatif::ProgressBar::new(hashed.len() as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
     bar.set_style(
         indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} logs {msg}")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
@@ -146,7 +200,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             }
             Err(e) => {
                 bar.suspend(|| eprintln!("{TOOL}: FAILED {}: {e:#}", log.display()));
-                failed.push((log.clone(), format!("{e:#}")));
+                failed.push(FailedLog {
+                    log: log.clone(),
+                    reason: format!("{e:#}"),
+                });
             }
         }
     }
@@ -154,24 +211,50 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     files += last.len();
     bar.finish_and_clear();
     let st = &pipe.feeder.stats;
+    let estimation = Estimation {
+        report: pipe.monitor.stage().observer().report(),
+        alerts: pipe.monitor.standing().to_vec(),
+    };
+    Ok(ExportSummary {
+        lake: args.out.clone(),
+        vehicle: args.vehicle.clone(),
+        profile: profile_name,
+        run_sha256: run,
+        logs: args.logs.len(),
+        logs_exported: ok,
+        failed,
+        frames,
+        mapped_frames: st.mapped_frames,
+        files_written: files,
+        events: estimation.report.events.len(),
+        alerts_standing: estimation.alerts.len(),
+        estimation,
+    })
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let s = export(&args, true, true)?;
     println!(
-        "{TOOL}: {ok} of {} logs exported to {} ({frames} frames, {} mapped, {files} files \
-         written; run {}); {} braking events, {} alerts standing",
-        args.logs.len(),
-        args.out.display(),
-        st.mapped_frames,
-        &run[..16],
-        pipe.monitor.stage().observer().report().events.len(),
-        pipe.monitor.standing().len(),
+        "{TOOL}: {} of {} logs exported to {} ({} frames, {} mapped, {} files written; run {}); \
+         {} braking events, {} alerts standing",
+        s.logs_exported,
+        s.logs,
+        s.lake.display(),
+        s.frames,
+        s.mapped_frames,
+        s.files_written,
+        &s.run_sha256[..16],
+        s.events,
+        s.alerts_standing,
     );
-    if !failed.is_empty() {
-        for (log, why) in &failed {
-            eprintln!("{TOOL}: failed: {}: {why}", log.display());
+    if !s.failed.is_empty() {
+        for f in &s.failed {
+            eprintln!("{TOOL}: failed: {}: {}", f.log.display(), f.reason);
         }
         bail!(
             "{} of {} logs failed (listed above)",
-            failed.len(),
-            args.logs.len()
+            s.failed.len(),
+            s.logs
         );
     }
     Ok(())

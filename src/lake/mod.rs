@@ -165,6 +165,8 @@ pub struct Exporter {
     pending: Option<(usize, Stamp, MonitorRows)>,
     /// The position and stamp of the last log that reached the monitor.
     last: Option<(usize, Stamp)>,
+    /// Whether the decoded signal files are written ([`Exporter::without_signals`]).
+    signals: bool,
 }
 
 /// Frames between two progress calls.
@@ -187,7 +189,15 @@ impl Exporter {
             pipe,
             pending: None,
             last: None,
+            signals: true,
         })
+    }
+
+    /// Writes only the monitor's tables (events, estimates, alerts), no signal files: the same
+    /// rows under the same names as a full export's.
+    pub fn without_signals(mut self) -> Exporter {
+        self.signals = false;
+        self
     }
 
     /// The pipeline (its counters, the monitor and its standing alerts).
@@ -229,7 +239,9 @@ impl Exporter {
         let read = (|| -> anyhow::Result<()> {
             while src.read_frame(&mut frame).context("reading log")? {
                 frames += 1;
-                sig.push(&frame)?;
+                if self.signals {
+                    sig.push(&frame)?;
+                }
                 if let Some((s, _)) = self.pipe.feeder.sample(&frame) {
                     if let Some(f) = self.pipe.monitor.push(&s) {
                         rows.finished.push(f);
@@ -269,9 +281,14 @@ impl Exporter {
                 path.display()
             );
         }
-        let done = sig.finish()?;
-        let counts = done.counts.clone();
-        files.extend(done.commit()?);
+        let counts = if self.signals {
+            let done = sig.finish()?;
+            let counts = done.counts.clone();
+            files.extend(done.commit()?);
+            counts
+        } else {
+            SignalCounts::default()
+        };
         progress(frames);
         Ok(LogDone {
             sha256: sha256.to_string(),

@@ -1,0 +1,332 @@
+//! `shimmy_monitor._native`: the Rust side of the `shimmy_monitor` Python package. Each function
+//! calls the same library code as the `shimmy` command it mirrors and hands Python either JSON
+//! (the same serde structs the CLI prints) or Arrow record batches through the Arrow C stream
+//! interface (`arrow_array::ffi_stream`, imported by pyarrow without a copy).
+//!
+//! What it is not: the Python API itself (python/shimmy_monitor/__init__.py wraps these and
+//! documents them), or another implementation of decoding, estimation or export. Errors become
+//! `shimmy_monitor.ShimmyError` with the Rust error chain as the message; a panic is caught here
+//! and raised as `ShimmyError` too, never unwound into Python.
+
+use std::collections::VecDeque;
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::Context as _;
+use arrow_array::builder::{BooleanBuilder, Float64Builder, StringBuilder, UInt32Builder};
+use arrow_array::ffi_stream::FFI_ArrowArrayStream;
+use arrow_array::types::TimestampNanosecondType;
+use arrow_array::{ArrayRef, PrimitiveArray, RecordBatch, RecordBatchReader};
+use arrow_schema::{ArrowError, DataType, Field, Schema, SchemaRef, TimeUnit};
+use pyo3::create_exception;
+use pyo3::exceptions::PyException;
+use pyo3::prelude::*;
+
+use shimmy::cli::{estimate, export, TextOrJson};
+use shimmy::dbc::{Database, DecodeError};
+use shimmy::source::log::LogReader;
+use shimmy::source::CanSource;
+use shimmy::wire::{Frame, FrameKind};
+
+create_exception!(
+    _native,
+    ShimmyError,
+    PyException,
+    "An error of shimmy-monitor: bad input (a missing or unreadable log, an unknown profile, a \
+     DBC that does not load, ...). The message is the whole error chain."
+);
+
+/// Runs `f` (without the GIL), turning its error or a panic into a `ShimmyError`.
+fn guarded<T: Send>(py: Python<'_>, f: impl FnOnce() -> anyhow::Result<T> + Send) -> PyResult<T> {
+    let r = py.detach(|| catch_unwind(AssertUnwindSafe(f)));
+    match r {
+        Ok(Ok(v)) => Ok(v),
+        Ok(Err(e)) => Err(ShimmyError::new_err(format!("{e:#}"))),
+        Err(p) => {
+            let what = p
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "unknown panic".into());
+            Err(ShimmyError::new_err(format!(
+                "internal error in shimmy-monitor (please report): {what}"
+            )))
+        }
+    }
+}
+
+/// Rows from which a record batch of `decode` closes, at the next frame boundary (bounded
+/// memory: one batch is built at a time).
+const BATCH_ROWS: usize = 65_536;
+
+/// The schema of `decode`: one row per decoded signal, as `shimmy decode --format csv` prints.
+fn decode_schema() -> SchemaRef {
+    Arc::new(Schema::new(vec![
+        Field::new(
+            "t",
+            DataType::Timestamp(TimeUnit::Nanosecond, Some("UTC".into())),
+            false,
+        ),
+        Field::new("id", DataType::UInt32, false),
+        Field::new("extended", DataType::Boolean, false),
+        Field::new("msg", DataType::Utf8, false),
+        Field::new("signal", DataType::Utf8, false),
+        Field::new("value", DataType::Float64, false),
+    ]))
+}
+
+/// The logs' frames decoded with a DBC, streamed as record batches of [`BATCH_ROWS`] rows and
+/// the rest of the frame that reached it; the same frames and values as `shimmy decode` (src/cli/decode.rs): data frames whose
+/// ID the DBC defines, frames whose multiplexer value selects nothing left out.
+struct DecodeStream {
+    db: Database,
+    logs: VecDeque<PathBuf>,
+    cur: Option<(PathBuf, LogReader)>,
+    frame: Frame,
+    schema: SchemaRef,
+    t: Vec<i64>,
+    id: UInt32Builder,
+    ext: BooleanBuilder,
+    msg: StringBuilder,
+    sig: StringBuilder,
+    val: Float64Builder,
+    done: bool,
+}
+
+impl DecodeStream {
+    fn new(db: Database, logs: Vec<PathBuf>) -> DecodeStream {
+        DecodeStream {
+            db,
+            logs: logs.into(),
+            cur: None,
+            frame: Frame::empty(0),
+            schema: decode_schema(),
+            t: Vec::with_capacity(BATCH_ROWS),
+            id: UInt32Builder::with_capacity(BATCH_ROWS),
+            ext: BooleanBuilder::with_capacity(BATCH_ROWS),
+            msg: StringBuilder::new(),
+            sig: StringBuilder::new(),
+            val: Float64Builder::with_capacity(BATCH_ROWS),
+            done: false,
+        }
+    }
+
+    /// Decodes frames into the builders until a batch is full or the logs end.
+    fn fill(&mut self) -> anyhow::Result<()> {
+        while self.t.len() < BATCH_ROWS {
+            if self.cur.is_none() {
+                let Some(p) = self.logs.pop_front() else {
+                    return Ok(());
+                };
+                let r =
+                    LogReader::open(&p).with_context(|| format!("opening log {}", p.display()))?;
+                self.cur = Some((p, r));
+            }
+            let (path, src) = self.cur.as_mut().expect("set above");
+            let more = src
+                .read_frame(&mut self.frame)
+                .with_context(|| format!("reading {}", path.display()))?;
+            if !more {
+                self.cur = None;
+                continue;
+            }
+            let f = &self.frame;
+            if f.kind != FrameKind::Data {
+                continue;
+            }
+            let Some(mi) = self.db.message_index(f.id, f.extended) else {
+                continue;
+            };
+            let m = &self.db.messages()[mi];
+            let data = f.payload();
+            if let Err(DecodeError::UnknownMultiplexerValue { .. }) = m.check_multiplexers(data) {
+                continue;
+            }
+            let (t, id, ext) = (f.t_ns, f.id, f.extended);
+            let (tv, idb, extb, msgb, sigb, valb) = (
+                &mut self.t,
+                &mut self.id,
+                &mut self.ext,
+                &mut self.msg,
+                &mut self.sig,
+                &mut self.val,
+            );
+            // As `shimmy decode`: what the decoder delivers is a row, whatever it returns.
+            let _ = m.decode(data, |i, _raw, phys| {
+                tv.push(t);
+                idb.append_value(id);
+                extb.append_value(ext);
+                msgb.append_value(&m.name);
+                sigb.append_value(&m.signals[i].name);
+                valb.append_value(phys);
+            });
+        }
+        Ok(())
+    }
+
+    fn take_batch(&mut self) -> Result<RecordBatch, ArrowError> {
+        let t = PrimitiveArray::<TimestampNanosecondType>::from(std::mem::take(&mut self.t))
+            .with_timezone("UTC");
+        let cols: Vec<ArrayRef> = vec![
+            Arc::new(t),
+            Arc::new(self.id.finish()),
+            Arc::new(self.ext.finish()),
+            Arc::new(self.msg.finish()),
+            Arc::new(self.sig.finish()),
+            Arc::new(self.val.finish()),
+        ];
+        self.t.reserve(BATCH_ROWS);
+        RecordBatch::try_new(self.schema.clone(), cols)
+    }
+}
+
+impl Iterator for DecodeStream {
+    type Item = Result<RecordBatch, ArrowError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        let r = catch_unwind(AssertUnwindSafe(|| self.fill()));
+        match r {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => {
+                self.done = true;
+                return Some(Err(ArrowError::ExternalError(format!("{e:#}").into())));
+            }
+            Err(_) => {
+                self.done = true;
+                return Some(Err(ArrowError::ExternalError(
+                    "internal error in shimmy-monitor's decoder (please report)".into(),
+                )));
+            }
+        }
+        if self.t.is_empty() {
+            self.done = true;
+            return None;
+        }
+        if self.cur.is_none() && self.logs.is_empty() {
+            self.done = true;
+        }
+        Some(self.take_batch())
+    }
+}
+
+impl RecordBatchReader for DecodeStream {
+    fn schema(&self) -> SchemaRef {
+        self.schema.clone()
+    }
+}
+
+/// Decodes `logs` with `dbc`; returns the address of an `ArrowArrayStream` the caller must
+/// import at once (pyarrow's `RecordBatchReader._import_from_c`), and the DBC's count of skipped
+/// statements.
+#[pyfunction]
+fn decode_stream(py: Python<'_>, logs: Vec<PathBuf>, dbc: PathBuf) -> PyResult<Py<StreamHandle>> {
+    let stream = guarded(py, move || {
+        let (db, _report) = Database::load(&dbc)?;
+        // Every log must open now: a missing or unrecognisable file is an error of the call,
+        // not of the first read.
+        for p in &logs {
+            LogReader::open(p).with_context(|| format!("opening log {}", p.display()))?;
+        }
+        let reader: Box<dyn RecordBatchReader + Send> = Box::new(DecodeStream::new(db, logs));
+        Ok(FFI_ArrowArrayStream::new(reader))
+    })?;
+    Py::new(
+        py,
+        StreamHandle {
+            stream: Box::new(stream),
+        },
+    )
+}
+
+/// Owns an exported `ArrowArrayStream` until pyarrow moves it out (`address`); dropping it
+/// afterwards is a no-op (pyarrow clears the moved-from struct's release callback).
+// unsendable: the raw stream is not Sync; the handle lives only for the import in `decode`.
+#[pyclass(unsendable, module = "shimmy_monitor._native")]
+struct StreamHandle {
+    stream: Box<FFI_ArrowArrayStream>,
+}
+
+#[pymethods]
+impl StreamHandle {
+    /// The address of the `ArrowArrayStream` struct.
+    fn address(&mut self) -> usize {
+        &mut *self.stream as *mut FFI_ArrowArrayStream as usize
+    }
+}
+
+fn estimate_args(logs: Vec<PathBuf>, profile: String, config: Option<PathBuf>) -> estimate::Args {
+    estimate::Args {
+        profile: Some(profile),
+        mapping: None,
+        dbc: None,
+        vehicle: None,
+        table: None,
+        config,
+        format: TextOrJson::Json,
+        logs,
+    }
+}
+
+/// `shimmy estimate --profile PROFILE [--config CONFIG] --format json LOG...`: the JSON document.
+#[pyfunction]
+#[pyo3(signature = (logs, profile, config=None))]
+fn estimate_json(
+    py: Python<'_>,
+    logs: Vec<PathBuf>,
+    profile: String,
+    config: Option<PathBuf>,
+) -> PyResult<String> {
+    guarded(py, move || {
+        anyhow::ensure!(!logs.is_empty(), "no logs given");
+        let args = estimate_args(logs, profile, config);
+        let (profile, est, _stats) = estimate::evaluate(&args)?;
+        Ok(estimate::output_json(profile.as_ref(), &est)?)
+    })
+}
+
+/// `shimmy export`: the run's summary as JSON (failed logs listed in it, not raised).
+#[pyfunction]
+#[pyo3(signature = (logs, profile, vehicle, out, config=None, signals=true))]
+fn export_json(
+    py: Python<'_>,
+    logs: Vec<PathBuf>,
+    profile: String,
+    vehicle: String,
+    out: PathBuf,
+    config: Option<PathBuf>,
+    signals: bool,
+) -> PyResult<String> {
+    guarded(py, move || {
+        anyhow::ensure!(!logs.is_empty(), "no logs given");
+        let args = export::Args {
+            profile,
+            vehicle,
+            out,
+            config,
+            logs,
+        };
+        let s = export::export(&args, false, signals)?;
+        Ok(serde_json::to_string(&s)?)
+    })
+}
+
+/// The crate version (`shimmy-monitor <version>` is the lake's `model_version`).
+#[pyfunction]
+fn model_version() -> String {
+    shimmy::lake::model_version()
+}
+
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("ShimmyError", m.py().get_type::<ShimmyError>())?;
+    m.add_class::<StreamHandle>()?;
+    m.add_function(wrap_pyfunction!(decode_stream, m)?)?;
+    m.add_function(wrap_pyfunction!(estimate_json, m)?)?;
+    m.add_function(wrap_pyfunction!(export_json, m)?)?;
+    m.add_function(wrap_pyfunction!(model_version, m)?)?;
+    Ok(())
+}
