@@ -5,8 +5,10 @@
 #   python/ci.sh --venv      create target/py-venv (reused when present) and pip-install the
 #                            build and test needs (maturin, pytest, pyarrow, duckdb, pyspark,
 #                            pandas); downloads cached in target/ci-tools/pip
-#   python/ci.sh --wheel     build the abi3 wheel (maturin, release; cargo target dir
-#                            target/py-build) into target/py-wheels and install it into the venv
+#   python/ci.sh --wheel     build the abi3 wheel (maturin, release, in the workspace's target
+#                            dir so that the dependencies its release build made are reused;
+#                            SHIMMY_PY_TARGET_DIR overrides) into target/py-wheels and install
+#                            it into the venv
 #   python/ci.sh --prepare   --venv then --wheel (CI does this before the tests)
 #   python/ci.sh --test      --venv, --wheel, then pytest python/tests (extra args go to pytest)
 #   python/ci.sh --check     print what is missing (python3 with venv, java), exit 1 if anything
@@ -52,7 +54,7 @@ wheel() {
     rm -rf "$WHEELS"
     mkdir -p "$WHEELS"
     log "building the wheel"
-    CARGO_TARGET_DIR=$ROOT/target/py-build "$VENV/bin/maturin" build --release \
+    CARGO_TARGET_DIR=${SHIMMY_PY_TARGET_DIR:-$ROOT/target} "$VENV/bin/maturin" build --release \
         --manifest-path "$ROOT/python/Cargo.toml" --out "$WHEELS" --interpreter "$VENV/bin/python"
     local whl
     whl=$(ls "$WHEELS"/shimmy_monitor-*.whl)
