@@ -257,7 +257,9 @@ fn rav4_log_raises_nothing_and_reports_counters() {
         }
     }
     std::fs::write(&cfg, lines.join("\n")).unwrap();
-    let out = e2e_common::replay_command(&cfg, &log, None).output().unwrap();
+    let out = e2e_common::replay_command(&cfg, &log, None)
+        .output()
+        .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(

@@ -373,7 +373,11 @@ pub fn truth_shimmy(truth: &Value, confirm: usize, window: usize) -> (Expect, Op
 /// what it needs (a working directory) and decides what a failure means.
 pub fn replay_command(cfg: &Path, log: &Path, state: Option<&Path>) -> Command {
     let mut cmd = Command::new(shimmyd());
-    cmd.arg("--config").arg(cfg).arg("--replay").arg(log).arg("--fast");
+    cmd.arg("--config")
+        .arg(cfg)
+        .arg("--replay")
+        .arg(log)
+        .arg("--fast");
     if let Some(s) = state {
         cmd.arg("--state-dir").arg(s);
     }
@@ -454,7 +458,10 @@ impl LiveDaemon {
             if let Some(s) = self.child.try_wait().expect("wait") {
                 return (s, self.stderr());
             }
-            assert!(Instant::now() < end, "shimmyd did not exit within {limit:?} of SIGTERM");
+            assert!(
+                Instant::now() < end,
+                "shimmyd did not exit within {limit:?} of SIGTERM"
+            );
             std::thread::sleep(Duration::from_millis(20));
         }
     }
