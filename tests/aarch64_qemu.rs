@@ -28,6 +28,9 @@
 
 #![cfg(all(target_os = "linux", target_arch = "x86_64"))]
 
+#[path = "support/outside_cargo.rs"]
+mod outside_cargo;
+
 use std::io::{BufRead, BufReader, Write};
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
@@ -95,7 +98,7 @@ fn aarch64_subset_passes_under_qemu() {
         expected.join(" ")
     ));
 
-    let mut child = Command::new("bash")
+    let mut child = outside_cargo::outside_cargo(Command::new("bash"))
         .arg(&script)
         .arg("--run")
         .current_dir(&root)

@@ -25,6 +25,9 @@
 //! Offline `security` reads no generator directory, so the generated drop-in is measured from
 //! the unpacked root's /etc/systemd/system/shimmyd.service.d/.
 
+#[path = "support/outside_cargo.rs"]
+mod outside_cargo;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -102,7 +105,7 @@ fn package() -> Option<PathBuf> {
     let mut built = BUILT.lock().unwrap_or_else(|e| e.into_inner());
     let result = built.get_or_insert_with(|| {
         let t0 = std::time::Instant::now();
-        let out = run(Command::new("bash")
+        let out = run(outside_cargo::outside_cargo(Command::new("bash"))
             .arg(workspace().join("config/debian/build.sh"))
             .env("SHIMMY_DATA_DIR", &data)
             .env_remove("SHIMMY_DBC_PATH")

@@ -16,6 +16,9 @@
 
 #![cfg(all(target_os = "linux", target_arch = "x86_64"))]
 
+#[path = "support/outside_cargo.rs"]
+mod outside_cargo;
+
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::Command;
@@ -77,7 +80,7 @@ fn fuzz(target: &str) {
     }
     let secs = budget_s();
     let t0 = std::time::Instant::now();
-    let out = Command::new("bash")
+    let out = outside_cargo::outside_cargo(Command::new("bash"))
         .arg(script())
         .args(["--run", target, &secs.to_string()])
         .output()

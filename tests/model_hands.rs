@@ -126,15 +126,7 @@ fn amplitudes(hands: Hands, c_mm: f64, seed: u64) -> (f64, f64) {
 #[test]
 fn a_firm_grip_holds_the_rim_and_the_torsion_bar_sees_the_pinion() {
     let prior = HandsPrior::default();
-    let mid = |s: HandsState| {
-        let r = prior.range(s);
-        let m = |(lo, hi): (f64, f64)| 0.5 * (lo + hi);
-        Hands {
-            inertia_kgm2: m(r.inertia_kgm2),
-            stiffness_nm_per_rad: m(r.stiffness_nm_per_rad),
-            damping_nms_per_rad: m(r.damping_nms_per_rad),
-        }
-    };
+    let mid = |s: HandsState| prior.range(s).midpoint();
     let (off, firm) = (mid(HandsState::Off), mid(HandsState::Firm));
     let res: Vec<[(f64, f64); 2]> = std::thread::scope(|s| {
         let hs: Vec<_> = (0..2u64)

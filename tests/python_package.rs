@@ -10,6 +10,8 @@
 //! is a failure.
 
 mod e2e_common;
+#[path = "support/outside_cargo.rs"]
+mod outside_cargo;
 
 use std::process::Command;
 
@@ -20,19 +22,6 @@ fn skip_or_fail(why: &str) {
         panic!("python package test cannot run: {why}");
     }
     eprintln!("SKIPPED python_package: {why}");
-}
-
-/// `cmd` without the variables cargo sets for a test (CARGO_*, but CARGO_HOME): seen by the
-/// wheel's cargo build, they would make build scripts rerun and the wheel rebuild from scratch
-/// instead of reusing what `python/ci.sh --prepare` (.ci/run) built.
-fn clean(mut cmd: Command) -> Command {
-    for (k, _) in std::env::vars_os() {
-        let k = k.to_string_lossy().into_owned();
-        if k.starts_with("CARGO") && k != "CARGO_HOME" {
-            cmd.env_remove(k);
-        }
-    }
-    cmd
 }
 
 #[test]
@@ -55,7 +44,7 @@ fn python_package_matches_the_cli_and_runs_the_fleet_job() {
         ));
     }
     // The environment first (a separate step, so that no network outside CI is a skip).
-    let venv = clean(Command::new("bash"))
+    let venv = outside_cargo::outside_cargo(Command::new("bash"))
         .arg(&script)
         .arg("--venv")
         .status()
@@ -63,7 +52,7 @@ fn python_package_matches_the_cli_and_runs_the_fleet_job() {
     if !venv.success() {
         return skip_or_fail("python/ci.sh --venv failed (pip install: no network?)");
     }
-    let out = clean(Command::new("bash"))
+    let out = outside_cargo::outside_cargo(Command::new("bash"))
         .arg(&script)
         .arg("--test")
         .arg("-q")

@@ -15,6 +15,9 @@
 
 #![cfg(target_os = "linux")]
 
+#[path = "support/outside_cargo.rs"]
+mod outside_cargo;
+
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -99,7 +102,7 @@ fn vcan_suite_on_a_real_can_bus() {
         "vcan_vm: running the vcan suite with {script:?} {mode}"
     ));
 
-    let mut child = Command::new("bash")
+    let mut child = outside_cargo::outside_cargo(Command::new("bash"))
         .arg(&script)
         .arg(mode)
         .current_dir(&root)

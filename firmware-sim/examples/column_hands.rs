@@ -7,7 +7,7 @@
 //!   cargo run --release -p firmware-sim --example column_hands [-- SEEDS]
 
 use shimmy::analysis::{peak_abs, Bandpass};
-use shimmy::model::{run, Hands, JointMode, Scenario, VehicleParams};
+use shimmy::model::{run, JointMode, Scenario, VehicleParams};
 use shimmy::observer::simulate::{HandsPrior, HandsState};
 
 fn main() -> anyhow::Result<()> {
@@ -17,15 +17,7 @@ fn main() -> anyhow::Result<()> {
     };
     let prior = HandsPrior::default();
     let states = [HandsState::Off, HandsState::Light, HandsState::Firm];
-    let mid = |s: HandsState| {
-        let r = prior.range(s);
-        let m = |(lo, hi): (f64, f64)| 0.5 * (lo + hi);
-        Hands {
-            inertia_kgm2: m(r.inertia_kgm2),
-            stiffness_nm_per_rad: m(r.stiffness_nm_per_rad),
-            damping_nms_per_rad: m(r.damping_nms_per_rad),
-        }
-    };
+    let mid = |s: HandsState| prior.range(s).midpoint();
     let clearances_mm = [0.03, 0.1, 0.2, 0.4];
     let mut jobs = Vec::new();
     for &c in &clearances_mm {

@@ -207,6 +207,18 @@ impl Default for HandsPrior {
     }
 }
 
+impl HandsRange {
+    /// The hands at the middle of each of the ranges (a typical driver in this state).
+    pub fn midpoint(&self) -> Hands {
+        let m = |(lo, hi): (f64, f64)| 0.5 * (lo + hi);
+        Hands {
+            inertia_kgm2: m(self.inertia_kgm2),
+            stiffness_nm_per_rad: m(self.stiffness_nm_per_rad),
+            damping_nms_per_rad: m(self.damping_nms_per_rad),
+        }
+    }
+}
+
 /// The hands of one braking event: the state drawn and its values.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct HandsDraw {

@@ -1,0 +1,20 @@
+//! A command a test runs that starts its own cargo build (the Python wheel, the fuzz targets,
+//! the VM's static binaries, the aarch64 subset, the Debian package), freed of the variables
+//! cargo sets for the test itself.
+//!
+//! What it is for: `.ci/run` builds those artifacts before `cargo test` runs; seen by the inner
+//! build, cargo's test variables (`CARGO_*` but `CARGO_HOME`) change what build scripts
+//! see, so they rerun and the inner build starts from scratch instead of reusing that work.
+
+use std::process::Command;
+
+/// `cmd` without cargo's test variables (`CARGO_*` but `CARGO_HOME`).
+pub fn outside_cargo(mut cmd: Command) -> Command {
+    for (k, _) in std::env::vars_os() {
+        let k = k.to_string_lossy().into_owned();
+        if k.starts_with("CARGO") && k != "CARGO_HOME" {
+            cmd.env_remove(k);
+        }
+    }
+    cmd
+}
