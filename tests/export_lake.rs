@@ -471,3 +471,70 @@ fn the_real_rav4_drive_exports_what_decode_and_estimate_say() {
     assert!(again.status.success());
     assert!(snapshot(&lake) == files, "a rerun changed the lake");
 }
+
+/// The log's sha256 is taken in the pass that reads it (an MDF 4 file in a pass of its own):
+/// whatever the format, the signal files are named by the sha256 of the file as it is on disk.
+#[test]
+fn signal_files_are_named_by_the_sha256_of_the_log_file_in_every_format() {
+    let Some(log) = shimmy::shared_data::require_file(shimmy::shared_data::RAV4_LOG) else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let mut logs = vec![log.clone()];
+    for rel in [
+        "logs/comma2k19-rav4/rav4_2017_seg40_bus0.asc",
+        "logs/comma2k19-rav4/rav4_2017_seg40_bus0.blf",
+    ] {
+        logs.extend(shimmy::shared_data::require_file(rel));
+    }
+    // gzip: the hash is of the compressed file, not of the text inside it.
+    let gz = dir.path().join("drive.log.gz");
+    {
+        use std::io::Write;
+        let mut w = flate2::write::GzEncoder::new(File::create(&gz).unwrap(), Default::default());
+        w.write_all(&std::fs::read(&log).unwrap()).unwrap();
+        w.finish().unwrap();
+    }
+    logs.push(gz);
+    let mf4 = dir.path().join("drive.mf4");
+    let conv = shimmy(&["convert".as_ref(), log.as_os_str(), mf4.as_os_str()]);
+    assert!(
+        conv.status.success(),
+        "{}",
+        String::from_utf8_lossy(&conv.stderr)
+    );
+    logs.push(mf4);
+    assert!(logs.len() >= 3, "{logs:?}");
+    for (i, l) in logs.iter().enumerate() {
+        let lake = dir.path().join(format!("lake{i}"));
+        let out = export("toyota_rav4", "rav4-1", &lake, &[l]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let want = sha256_hex(l)[..16].to_string();
+        let files = snapshot(&lake);
+        let names: Vec<String> = files
+            .keys()
+            .filter(|p| p.starts_with("rav4-1"))
+            .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+            .collect();
+        assert!(names.len() > 20, "{}: {names:?}", l.display());
+        for n in &names {
+            assert!(
+                n.starts_with(&want),
+                "{}: file {n}, sha256 {want}",
+                l.display()
+            );
+        }
+        // No temporary file is left behind.
+        assert!(
+            files
+                .keys()
+                .all(|p| !p.file_name().unwrap().to_string_lossy().starts_with('.')),
+            "{:?}",
+            files.keys().collect::<Vec<_>>()
+        );
+    }
+}

@@ -10,7 +10,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 
 use crate::cli::estimate::Estimation;
-use crate::lake::{run_sha256, sha256_bytes, sha256_file, Exporter, Inputs};
+use crate::lake::{sha256_bytes, sha256_file, Exporter, Inputs};
 use crate::observer::ObserverConfig;
 use crate::pipeline::feeder::Offline;
 use crate::profile::Profile;
@@ -151,29 +151,16 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
         TOOL,
     )?;
 
-    // Every log's hash first: the monitor's files are named by the whole run.
     let mut failed: Vec<FailedLog> = Vec::new();
-    let mut hashed = Vec::new();
-    for log in &args.logs {
-        match sha256_file(log) {
-            Ok(h) => hashed.push((log.clone(), h)),
-            Err(e) => failed.push(FailedLog {
-                log: log.clone(),
-                reason: format!("{e:#}"),
-            }),
-        }
-    }
-    let shas: Vec<String> = hashed.iter().map(|(_, h)| h.clone()).collect();
-    let run = run_sha256(&inputs, &shas);
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create the lake {}", args.out.display()))?;
-    let mut ex = Exporter::new(args.out.clone(), inputs, run.clone(), pipe)?;
+    let mut ex = Exporter::new(args.out.clone(), inputs, pipe)?;
     if !signals {
         ex = ex.without_signals();
     }
 
     let bar = if progress {
-        indicatif::ProgressBar::new(hashed.len() as u64)
+        indicatif::ProgressBar::new(args.logs.len() as u64)
     } else {
         indicatif::ProgressBar::hidden()
     };
@@ -183,9 +170,9 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
     );
     bar.set_prefix(TOOL);
     let (mut files, mut frames, mut ok) = (0usize, 0u64, 0usize);
-    for (i, (log, sha)) in hashed.iter().enumerate() {
+    for (i, log) in args.logs.iter().enumerate() {
         let name = log.display().to_string();
-        let res = ex.export_log(i, log, sha, &mut |n| {
+        let res = ex.export_log(i, log, &mut |n| {
             bar.set_message(format!("{name}: {n} frames"));
         });
         bar.inc(1);
@@ -207,8 +194,9 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
             }
         }
     }
-    let (last, pipe) = ex.finish()?;
-    files += last.len();
+    let done = ex.finish()?;
+    let (run, pipe) = (done.run_sha256, done.pipe);
+    files += done.files.len();
     bar.finish_and_clear();
     let st = &pipe.feeder.stats;
     let estimation = Estimation {

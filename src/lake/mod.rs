@@ -22,9 +22,12 @@
 //! One log at a time ([`Exporter::export_log`]): its frames go through the DBC decoder into the
 //! signal files and, frame by frame, through the same pipeline as `shimmy estimate`
 //! ([`crate::pipeline::feeder::Offline`]: mapper → detector samples → [`crate::pipeline::Monitor`]
-//! → alert book) into the monitor's rows. A log's files appear (renamed from hidden temporary
-//! names) only when the whole log has been read; a log that fails leaves none of its signal
-//! files.
+//! → alert book) into the monitor's rows. The log's sha256 is computed from the bytes the reader
+//! reads, in the same pass (an MDF 4 file, read by seeking, is hashed in a pass of its own).
+//! A log's signal files appear (renamed from hidden temporary names to their hash-derived
+//! names) only when the whole log has been read; a log that fails leaves none of them. The
+//! monitor's rows are held until [`Exporter::finish`], when every log's hash, hence the run's,
+//! is known (they are a few rows per braking event).
 //!
 //! What it is not: the pipeline (reused, not copied), a Parquet reader, or a catalogue (no
 //! manifest: the file names are the catalogue).
@@ -33,8 +36,9 @@ pub mod signals;
 pub mod tables;
 pub mod write;
 
-use std::io::Read;
+use std::io::{Read, Seek};
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 
 use anyhow::{bail, Context};
 use sha2::{Digest, Sha256};
@@ -72,6 +76,73 @@ pub fn sha256_file(path: &Path) -> anyhow::Result<String> {
         h.update(&buf[..n]);
     }
     Ok(hex(&h.finalize()))
+}
+
+/// A reader that hashes what it reads: the log's sha256 in the pass that parses it.
+struct HashingReader<R> {
+    inner: R,
+    state: Arc<Mutex<(Sha256, u64)>>,
+}
+
+impl<R: Read> Read for HashingReader<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        st.0.update(&buf[..n]);
+        st.1 += n as u64;
+        Ok(n)
+    }
+}
+
+/// Opens a log for reading while hashing it. The returned closure gives the file's sha256 once
+/// reading has ended: what the reader read, completed from the file when the reader stopped
+/// before the end (a container's trailing bytes, a read error). MDF 4 is read by seeking, so it
+/// is hashed in a pass of its own.
+fn open_hashed(
+    path: &Path,
+) -> anyhow::Result<(LogReader, Box<dyn FnOnce() -> anyhow::Result<String>>)> {
+    let mut file =
+        std::fs::File::open(path).with_context(|| format!("cannot open log {}", path.display()))?;
+    let mut head = [0u8; 8];
+    let n = file.read(&mut head).unwrap_or(0);
+    file.rewind()
+        .with_context(|| format!("cannot read log {}", path.display()))?;
+    if crate::wire::mf4::is_mdf4(&head[..n]) {
+        let sha = sha256_file(path)?;
+        let src = LogReader::from_seekable(file, path)
+            .with_context(|| format!("cannot open log {}", path.display()))?;
+        return Ok((src, Box::new(move || Ok(sha))));
+    }
+    let state = Arc::new(Mutex::new((Sha256::new(), 0u64)));
+    let reader = HashingReader {
+        inner: file,
+        state: Arc::clone(&state),
+    };
+    let src = LogReader::from_reader(reader, path)
+        .with_context(|| format!("cannot open log {}", path.display()))?;
+    let path = path.to_path_buf();
+    let finish = move || -> anyhow::Result<String> {
+        let (mut h, read) = {
+            let st = state.lock().unwrap_or_else(|e| e.into_inner());
+            (st.0.clone(), st.1)
+        };
+        let mut f = std::fs::File::open(&path)
+            .with_context(|| format!("cannot open {}", path.display()))?;
+        f.seek(std::io::SeekFrom::Start(read))
+            .with_context(|| format!("reading {}", path.display()))?;
+        let mut buf = vec![0u8; 1 << 16];
+        loop {
+            let n = f
+                .read(&mut buf)
+                .with_context(|| format!("reading {}", path.display()))?;
+            if n == 0 {
+                break;
+            }
+            h.update(&buf[..n]);
+        }
+        Ok(hex(&h.finalize()))
+    };
+    Ok((src, Box::new(finish)))
 }
 
 /// sha256 of bytes, hex.
@@ -158,36 +229,41 @@ pub struct LogDone {
 pub struct Exporter {
     lake: PathBuf,
     inputs: Inputs,
-    run_sha256: String,
     pipe: Offline,
-    /// The monitor's rows of the last log, written when the next log starts or at
-    /// [`Exporter::finish`] (the end of the run may still close an event).
-    pending: Option<(usize, Stamp, MonitorRows)>,
-    /// The position and stamp of the last log that reached the monitor.
-    last: Option<(usize, Stamp)>,
+    /// Each log's sha256 by position in the run (None: it could not be read to the end).
+    shas: Vec<Option<String>>,
+    /// The monitor's rows by the position of the log they finished in, written at
+    /// [`Exporter::finish`], when the run's hash is known.
+    rows: Vec<(usize, MonitorRows)>,
+    /// The position of the last log that reached the monitor (an event the end of the run
+    /// closes is filed with it).
+    last: Option<usize>,
     /// Whether the decoded signal files are written ([`Exporter::without_signals`]).
     signals: bool,
+}
+
+/// What a finished run wrote.
+pub struct RunDone {
+    /// The monitor's files written at the end of the run.
+    pub files: Vec<PathBuf>,
+    /// The run's hash ([`run_sha256`] over the logs that could be read).
+    pub run_sha256: String,
+    /// The pipeline (its counters, the monitor and its standing alerts).
+    pub pipe: Offline,
 }
 
 /// Frames between two progress calls.
 pub const PROGRESS_FRAMES: u64 = 1 << 18;
 
 impl Exporter {
-    /// `run_sha256`: [`run_sha256`] of `inputs` and the run's logs (all of them, hashed before
-    /// the first is exported).
-    pub fn new(
-        lake: PathBuf,
-        inputs: Inputs,
-        run_sha256: String,
-        pipe: Offline,
-    ) -> anyhow::Result<Exporter> {
+    pub fn new(lake: PathBuf, inputs: Inputs, pipe: Offline) -> anyhow::Result<Exporter> {
         check_vehicle_id(&inputs.vehicle)?;
         Ok(Exporter {
             lake,
             inputs,
-            run_sha256,
             pipe,
-            pending: None,
+            shas: Vec::new(),
+            rows: Vec::new(),
             last: None,
             signals: true,
         })
@@ -205,8 +281,8 @@ impl Exporter {
         &self.pipe
     }
 
-    /// Exports log number `index` of the run, whose sha256 is `sha256`; `progress` is called
-    /// with the frames read so far every [`PROGRESS_FRAMES`].
+    /// Exports log number `index` of the run (positions must increase from call to call);
+    /// `progress` is called with the frames read so far every [`PROGRESS_FRAMES`].
     ///
     /// Errors: the log cannot be opened or read, it holds no CAN frame, none of its frames
     /// belongs to the profile's mapped messages (another car), or a file cannot be written. A
@@ -217,21 +293,21 @@ impl Exporter {
         &mut self,
         index: usize,
         path: &Path,
-        sha256: &str,
         progress: &mut dyn FnMut(u64),
     ) -> anyhow::Result<LogDone> {
-        let mut files = self.write_pending()?;
-        let mut src =
-            LogReader::open(path).with_context(|| format!("cannot open log {}", path.display()))?;
-        let tag = format!("{}-{}", &sha256[..16], &self.inputs.dbc_sha256[..8]);
-        let mut sig = SignalFiles::new(&self.pipe.db, self.lake.join(&self.inputs.vehicle), tag);
-        let stamp = Stamp {
-            log_sha256: sha256.to_string(),
-            run_sha256: self.run_sha256.clone(),
-            model_version: model_version(),
-            table_sha256: self.inputs.table_sha256.clone(),
-            dbc_sha256: self.inputs.dbc_sha256.clone(),
-        };
+        if self.shas.len() > index {
+            bail!("log position {index} exported twice (positions must increase)");
+        }
+        self.shas.resize(index + 1, None);
+        let (mut src, sha) = open_hashed(path)?;
+        // Temporary names until the log's hash is known: derived from the log's path, so a
+        // rerun of a crashed export overwrites what it left.
+        let tmp_key = sha256_bytes(path.as_os_str().as_encoded_bytes());
+        let mut sig = SignalFiles::new(
+            &self.pipe.db,
+            self.lake.join(&self.inputs.vehicle),
+            tmp_key[..16].to_string(),
+        );
         let mut rows = MonitorRows::default();
         let mapped_before = self.pipe.feeder.stats.mapped_frames;
         let mut frame = Frame::empty(0);
@@ -255,15 +331,22 @@ impl Exporter {
         })();
         self.pipe.feeder.stats.add_source(&src.stats());
         let skips = src.take_skips();
+        drop(src);
         let events = rows.finished.len();
         if self.pipe.feeder.stats.mapped_frames > mapped_before {
-            self.last = Some((index, stamp.clone()));
+            self.last = Some(index);
         }
         // Rows the monitor made stay with the run, whatever happens to this log's files.
         if !rows.is_empty() {
-            self.pending = Some((index, stamp, rows));
+            self.rows.push((index, rows));
+        }
+        // The hash of a log that could not be read to its end is left out of the run's.
+        let sha256 = sha();
+        if let Ok(h) = &sha256 {
+            self.shas[index] = Some(h.clone());
         }
         read.with_context(|| format!("log {}", path.display()))?;
+        let sha256 = sha256?;
         if frames == 0 {
             bail!(
                 "log {}: no CAN frames (empty, or not a CAN log{})",
@@ -281,17 +364,19 @@ impl Exporter {
                 path.display()
             );
         }
+        let mut files = Vec::new();
         let counts = if self.signals {
             let done = sig.finish()?;
             let counts = done.counts.clone();
-            files.extend(done.commit()?);
+            let tag = format!("{}-{}", &sha256[..16], &self.inputs.dbc_sha256[..8]);
+            files.extend(done.commit(&tag)?);
             counts
         } else {
             SignalCounts::default()
         };
         progress(frames);
         Ok(LogDone {
-            sha256: sha256.to_string(),
+            sha256,
             frames,
             signals: counts,
             events,
@@ -300,48 +385,72 @@ impl Exporter {
         })
     }
 
-    /// Writes the monitor rows held back, under their log's position; returns the files.
-    fn write_pending(&mut self) -> anyhow::Result<Vec<PathBuf>> {
-        let Some((index, stamp, rows)) = self.pending.take() else {
-            return Ok(Vec::new());
-        };
+    /// Writes the monitor rows, each under its log's position; returns the files.
+    fn write_rows(&mut self, run: &str) -> anyhow::Result<Vec<PathBuf>> {
         let schemas = [
             tables::events_schema(),
             tables::estimates_schema(),
             tables::alerts_schema(),
         ];
         let mut closed = Vec::new();
-        for (day, batches) in rows.batches(&stamp)? {
+        for (index, rows) in std::mem::take(&mut self.rows) {
+            let stamp = Stamp {
+                // A log that failed part-way keeps the rows its frames made; its hash is then
+                // unknown.
+                log_sha256: self.shas[index].clone().unwrap_or_default(),
+                run_sha256: run.to_string(),
+                model_version: model_version(),
+                table_sha256: self.inputs.table_sha256.clone(),
+                dbc_sha256: self.inputs.dbc_sha256.clone(),
+            };
+            closed.extend(self.write_log_rows(index, &stamp, &rows, &schemas, run)?);
+        }
+        closed.into_iter().map(write::Closed::commit).collect()
+    }
+
+    fn write_log_rows(
+        &self,
+        index: usize,
+        stamp: &Stamp,
+        rows: &MonitorRows,
+        schemas: &[arrow_schema::SchemaRef; 3],
+        run: &str,
+    ) -> anyhow::Result<Vec<write::Closed>> {
+        let mut closed = Vec::new();
+        for (day, batches) in rows.batches(stamp)? {
             let (y, m, d) = civil_date(day);
-            for ((name, schema), batch) in TABLES.iter().zip(&schemas).zip(batches) {
+            for ((name, schema), batch) in TABLES.iter().zip(schemas).zip(batches) {
                 let Some(batch) = batch else { continue };
                 let dest = self
                     .lake
                     .join(name)
                     .join(format!("vehicle={}", self.inputs.vehicle))
                     .join(format!("date={y:04}-{m:02}-{d:02}"))
-                    .join(format!("{}-{index:04}.parquet", &self.run_sha256[..16]));
+                    .join(format!("{}-{index:04}.parquet", &run[..16]));
                 closed.push(write::write_file(dest, schema.clone(), &[batch])?);
             }
         }
-        closed.into_iter().map(write::Closed::commit).collect()
+        Ok(closed)
     }
 
-    /// End of the run: closes a braking event still open and writes the last monitor rows;
-    /// returns the files written now and the pipeline.
-    pub fn finish(mut self) -> anyhow::Result<(Vec<PathBuf>, Offline)> {
+    /// End of the run: closes a braking event still open (filed with the last log that
+    /// reached the monitor), computes the run's hash and writes the monitor's rows.
+    pub fn finish(mut self) -> anyhow::Result<RunDone> {
         if let Some(f) = self.pipe.monitor.finish() {
-            match (&mut self.pending, &self.last) {
-                (Some((_, _, rows)), _) => rows.finished.push(f),
-                (None, Some((index, stamp))) => {
-                    let rows = MonitorRows { finished: vec![f] };
-                    self.pending = Some((*index, stamp.clone(), rows));
-                }
+            match (self.rows.last_mut(), self.last) {
+                (Some((i, rows)), Some(last)) if *i == last => rows.finished.push(f),
+                (_, Some(last)) => self.rows.push((last, MonitorRows { finished: vec![f] })),
                 // No log reached the monitor: it has no event to close.
-                (None, None) => {}
+                (_, None) => {}
             }
         }
-        let files = self.write_pending()?;
-        Ok((files, self.pipe))
+        let shas: Vec<String> = self.shas.iter().flatten().cloned().collect();
+        let run = run_sha256(&self.inputs, &shas);
+        let files = self.write_rows(&run)?;
+        Ok(RunDone {
+            files,
+            run_sha256: run,
+            pipe: self.pipe,
+        })
     }
 }

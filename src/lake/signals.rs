@@ -15,11 +15,11 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use arrow_array::builder::{ArrayBuilder, Float64Builder, TimestampMicrosecondBuilder};
-use arrow_array::{ArrayRef, RecordBatch};
+use arrow_array::{ArrayRef, Float64Array, RecordBatch, TimestampMicrosecondArray};
+use arrow_schema::ArrowError;
 use arrow_schema::{DataType, Field, Schema, SchemaRef, TimeUnit};
 
-use super::write::{Closed, PartFile};
+use super::write::{signal_properties, Closed, PartFile};
 use crate::dbc::{Database, DecodeError, Message};
 use crate::wire::{Frame, FrameKind};
 
@@ -73,11 +73,39 @@ pub struct SignalCounts {
     pub non_data: u64,
 }
 
+/// One signal's values in progress: plain vectors, moved into Arrow arrays without a copy when
+/// the batch is handed over (Arrow's builders start from no capacity after each `finish`, so
+/// every batch would regrow them value by value).
+struct Column {
+    vals: Vec<f64>,
+    valid: Vec<bool>,
+    nulls: usize,
+}
+
+impl Column {
+    fn new() -> Column {
+        Column {
+            vals: Vec::with_capacity(BATCH_ROWS),
+            valid: Vec::with_capacity(BATCH_ROWS),
+            nulls: 0,
+        }
+    }
+
+    fn take(&mut self) -> Float64Array {
+        let vals = std::mem::replace(&mut self.vals, Vec::with_capacity(BATCH_ROWS));
+        let nulls = (self.nulls > 0).then(|| self.valid.as_slice().into());
+        self.valid.clear();
+        self.nulls = 0;
+        Float64Array::new(vals.into(), nulls)
+    }
+}
+
 /// One message's rows in progress and its open file.
 struct MsgTable {
     schema: SchemaRef,
-    t: TimestampMicrosecondBuilder,
-    cols: Vec<Float64Builder>,
+    /// Timestamps (µs since the epoch, UTC).
+    t: Vec<i64>,
+    cols: Vec<Column>,
     /// Day (since the epoch) of the open file, and the file.
     open: Option<(i64, PartFile)>,
     /// Files opened so far for this message (the file name's sequence number).
@@ -88,29 +116,29 @@ impl MsgTable {
     fn new(msg: &Message) -> MsgTable {
         MsgTable {
             schema: message_schema(msg),
-            t: TimestampMicrosecondBuilder::with_capacity(BATCH_ROWS).with_timezone("UTC"),
-            cols: msg
-                .signals
-                .iter()
-                .map(|_| Float64Builder::with_capacity(BATCH_ROWS))
-                .collect(),
+            t: Vec::with_capacity(BATCH_ROWS),
+            cols: msg.signals.iter().map(|_| Column::new()).collect(),
             open: None,
             seq: 0,
         }
     }
 
     fn batch(&mut self) -> anyhow::Result<RecordBatch> {
+        let t = std::mem::replace(&mut self.t, Vec::with_capacity(BATCH_ROWS));
         let mut cols: Vec<ArrayRef> = Vec::with_capacity(1 + self.cols.len());
-        cols.push(Arc::new(self.t.finish()));
+        cols.push(Arc::new(
+            TimestampMicrosecondArray::new(t.into(), None).with_timezone("UTC"),
+        ));
         for c in &mut self.cols {
-            cols.push(Arc::new(c.finish()));
+            cols.push(Arc::new(c.take()));
         }
-        Ok(RecordBatch::try_new(Arc::clone(&self.schema), cols)?)
+        RecordBatch::try_new(Arc::clone(&self.schema), cols)
+            .map_err(|e: ArrowError| anyhow::anyhow!("signal batch: {e}"))
     }
 
     /// Hands the buffered rows to the open file.
     fn flush(&mut self) -> anyhow::Result<()> {
-        if self.t.len() == 0 {
+        if self.t.is_empty() {
             return Ok(());
         }
         let b = self.batch()?;
@@ -120,12 +148,14 @@ impl MsgTable {
 }
 
 /// The decoded-signal files of one log, under `<lake>/<device>/`, named
-/// `<tag>-<seq>.parquet` (`tag`: derived from the log's and the DBC's content, see [`super`];
-/// `seq`: the message's files of this log, from 0, a new one whenever the date changes).
+/// `<tag>-<seq>.parquet` (`tag`: derived from the log's and the DBC's content, see [`super`],
+/// given at [`Finished::commit`] once the whole log has been read; `seq`: the message's files of
+/// this log, from 0, a new one whenever the date changes). Until then they are written under
+/// hidden temporary names made from `tmp_key`.
 pub struct SignalFiles<'db> {
     db: &'db Database,
     root: PathBuf,
-    tag: String,
+    tmp_key: String,
     msgs: Vec<Option<MsgTable>>,
     /// Per signal of the message being decoded: its value, and whether the frame carried it.
     vals: Vec<f64>,
@@ -135,7 +165,7 @@ pub struct SignalFiles<'db> {
 }
 
 impl<'db> SignalFiles<'db> {
-    pub fn new(db: &'db Database, device_root: PathBuf, tag: String) -> SignalFiles<'db> {
+    pub fn new(db: &'db Database, device_root: PathBuf, tmp_key: String) -> SignalFiles<'db> {
         let most = db
             .messages()
             .iter()
@@ -145,7 +175,7 @@ impl<'db> SignalFiles<'db> {
         SignalFiles {
             db,
             root: device_root,
-            tag,
+            tmp_key,
             msgs: db.messages().iter().map(|_| None).collect(),
             vals: vec![0.0; most],
             seen: vec![false; most],
@@ -198,17 +228,20 @@ impl<'db> SignalFiles<'db> {
                 .join(format!("{y:04}"))
                 .join(format!("{m:02}"))
                 .join(format!("{d:02}"))
-                .join(format!("{}-{:03}.parquet", self.tag, table.seq));
+                .join(format!("{}-{:03}.parquet", self.tmp_key, table.seq));
             table.seq += 1;
-            table.open = Some((day, PartFile::create(dest, Arc::clone(&table.schema))?));
+            table.open = Some((
+                day,
+                PartFile::create_with(dest, Arc::clone(&table.schema), signal_properties())?,
+            ));
         }
-        table.t.append_value(frame.t_ns.div_euclid(1000));
+        table.t.push(frame.t_ns.div_euclid(1000));
         for (c, (&v, &s)) in table.cols.iter_mut().zip(vals.iter().zip(seen.iter())) {
-            if s {
-                c.append_value(v);
-            } else {
-                c.append_null();
-            }
+            // A null's slot holds 0 (Arrow leaves it unspecified; a fixed value keeps reruns'
+            // bytes equal).
+            c.vals.push(if s { v } else { 0.0 });
+            c.valid.push(s);
+            c.nulls += usize::from(!s);
         }
         self.counts.rows += 1;
         if table.t.len() >= BATCH_ROWS {
@@ -228,6 +261,7 @@ impl<'db> SignalFiles<'db> {
         }
         Ok(Finished {
             files: std::mem::take(&mut self.closed),
+            tmp_key: std::mem::take(&mut self.tmp_key),
             counts: self.counts.clone(),
         })
     }
@@ -236,13 +270,27 @@ impl<'db> SignalFiles<'db> {
 /// A log's signal files, written and synced, not yet visible.
 pub struct Finished {
     files: Vec<Closed>,
+    tmp_key: String,
     pub counts: SignalCounts,
 }
 
 impl Finished {
-    /// Renames every file to its final name; returns the names.
-    pub fn commit(self) -> anyhow::Result<Vec<PathBuf>> {
-        self.files.into_iter().map(Closed::commit).collect()
+    /// Renames every file to its final name `<tag>-<seq>.parquet`; returns the names.
+    pub fn commit(self, tag: &str) -> anyhow::Result<Vec<PathBuf>> {
+        let key = self.tmp_key;
+        self.files
+            .into_iter()
+            .map(|f| {
+                let dest = f.dest();
+                let name = dest
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                let seq = name.strip_prefix(key.as_str()).unwrap_or(&name);
+                let dest = dest.with_file_name(format!("{tag}{seq}"));
+                f.commit_to(dest)
+            })
+            .collect()
     }
 }
 

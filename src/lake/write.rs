@@ -15,7 +15,8 @@ use arrow_array::RecordBatch;
 use arrow_schema::SchemaRef;
 use parquet::arrow::ArrowWriter;
 use parquet::basic::Compression;
-use parquet::file::properties::WriterProperties;
+use parquet::file::properties::{EnabledStatistics, WriterProperties, WriterPropertiesBuilder};
+use parquet::schema::types::ColumnPath;
 
 /// Rows per Parquet row group: bounds the memory an open file holds (its row group is encoded
 /// in memory until full).
@@ -26,10 +27,7 @@ pub fn created_by() -> String {
     format!("shimmy-monitor {}", env!("CARGO_PKG_VERSION"))
 }
 
-/// The writer properties of every lake file: Snappy, PLAIN encoding, row groups of
-/// [`ROW_GROUP_ROWS`], the library's defaults otherwise (chunk and page statistics),
-/// `created_by` fixed.
-pub fn properties() -> WriterProperties {
+fn base_properties() -> WriterPropertiesBuilder {
     WriterProperties::builder()
         // PLAIN pages (no dictionary): every Parquet reader decodes them, and dictionary
         // building cost a fifth of the export's time for 8 % smaller files (docs/BENCHMARKS.md).
@@ -37,6 +35,24 @@ pub fn properties() -> WriterProperties {
         .set_compression(Compression::SNAPPY)
         .set_max_row_group_row_count(Some(ROW_GROUP_ROWS))
         .set_created_by(created_by())
+}
+
+/// The writer properties of the monitor's tables: Snappy, PLAIN encoding, row groups of
+/// [`ROW_GROUP_ROWS`], the library's defaults otherwise (chunk and page statistics on every
+/// column), `created_by` fixed.
+pub fn properties() -> WriterProperties {
+    base_properties().build()
+}
+
+/// The writer properties of the decoded-signal files: as [`properties`], with min/max
+/// statistics (chunk and page) on the time column `t` only. Queries select signal files by time
+/// (`WHERE t BETWEEN …`), which `t`'s statistics prune; a signal's values over a row group (about
+/// a minute of a busy message) span most of its range, so their statistics would prune almost
+/// nothing, and computing them was a twentieth of the export's instructions.
+pub fn signal_properties() -> WriterProperties {
+    base_properties()
+        .set_statistics_enabled(EnabledStatistics::None)
+        .set_column_statistics_enabled(ColumnPath::from("t"), EnabledStatistics::Page)
         .build()
 }
 
@@ -49,8 +65,17 @@ pub struct PartFile {
 
 impl PartFile {
     /// Creates the destination's directory and the temporary file (truncating one a crashed
-    /// run left).
+    /// run left), written with [`properties`].
     pub fn create(dest: PathBuf, schema: SchemaRef) -> anyhow::Result<PartFile> {
+        Self::create_with(dest, schema, properties())
+    }
+
+    /// As [`PartFile::create`], with the given writer properties.
+    pub fn create_with(
+        dest: PathBuf,
+        schema: SchemaRef,
+        props: WriterProperties,
+    ) -> anyhow::Result<PartFile> {
         let dir = dest.parent().unwrap_or(Path::new("."));
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create directory {}", dir.display()))?;
@@ -64,7 +89,7 @@ impl PartFile {
         let writer = ArrowWriter::try_new(
             BufWriter::with_capacity(1 << 16, file),
             Arc::clone(&schema),
-            Some(properties()),
+            Some(props),
         )
         .with_context(|| format!("parquet writer for {}", dest.display()))?;
         Ok(PartFile {
@@ -118,6 +143,18 @@ pub struct Closed {
 }
 
 impl Closed {
+    /// The name it was created for.
+    pub fn dest(&self) -> &Path {
+        &self.dest
+    }
+
+    /// Renames it to `dest` instead of the name it was created for (a name known only once
+    /// the file was written); returns `dest`.
+    pub fn commit_to(mut self, dest: PathBuf) -> anyhow::Result<PathBuf> {
+        self.dest = dest;
+        self.commit()
+    }
+
     /// Renames it to its destination (replacing a file of the same name: the same input gives
     /// the same bytes); returns the destination.
     pub fn commit(mut self) -> anyhow::Result<PathBuf> {

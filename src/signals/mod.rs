@@ -339,6 +339,12 @@ pub struct Mapper {
     warnings: Vec<String>,
     /// Latest frame time seen (drives timeouts).
     now_ns: Option<i64>,
+    /// No slot can time out before this (ns): a lower bound on `last_good_ns + timeout_ns` over
+    /// the slots not timed out, so most frames skip the per-slot timeout pass.
+    deadline_ns: i64,
+    /// Slot index + 1 of each standard (11-bit) ID, 0 for an ID no slot reads: the lookup of
+    /// every frame on the bus, most of which the mapping does not read.
+    std_slot: Vec<u8>,
     ignored_frames: u64,
 }
 
@@ -631,6 +637,12 @@ impl Mapper {
         };
 
         let needed = r.slots.iter().map(|s| (s.id, s.extended)).collect();
+        let mut std_slot = vec![0u8; 1 << 11];
+        for (i, s) in r.slots.iter().enumerate().rev() {
+            if !s.extended && s.id < (1 << 11) && i < usize::from(u8::MAX) {
+                std_slot[s.id as usize] = i as u8 + 1;
+            }
+        }
         Ok(Mapper {
             slots: r.slots,
             needed,
@@ -650,6 +662,8 @@ impl Mapper {
             v_lat: None,
             warnings: r.warnings,
             now_ns: None,
+            deadline_ns: i64::MAX,
+            std_slot,
             ignored_frames: 0,
         })
     }
@@ -690,6 +704,10 @@ impl Mapper {
         let now = t_ns;
         let went_back = self.now_ns.is_some_and(|prev| now < prev);
         self.now_ns = Some(now);
+        if !went_back && now <= self.deadline_ns {
+            return;
+        }
+        let mut deadline = i64::MAX;
         for s in &mut self.slots {
             if went_back {
                 s.last_counter = None;
@@ -701,8 +719,25 @@ impl Mapper {
                     // A sender that went away restarts its counter wherever it likes.
                     s.last_counter = None;
                 }
+                if !s.timed_out {
+                    deadline = deadline.min(last.saturating_add(s.timeout_ns));
+                }
             }
         }
+        self.deadline_ns = deadline;
+    }
+
+    /// The slot reading (`id`, `extended`), if any.
+    #[inline]
+    fn slot_of(&self, id: u32, extended: bool) -> Option<usize> {
+        if !extended && self.slots.len() < usize::from(u8::MAX) {
+            if let Some(&k) = self.std_slot.get(id as usize) {
+                return usize::from(k).checked_sub(1);
+            }
+        }
+        self.slots
+            .iter()
+            .position(|s| s.id == id && s.extended == extended)
     }
 
     /// Interpret one frame. `None` when it belongs to no mapped message. Allocates nothing.
@@ -712,11 +747,7 @@ impl Mapper {
             self.ignored_frames += 1;
             return None;
         }
-        let Some(i) = self
-            .slots
-            .iter()
-            .position(|s| s.id == f.id && s.extended == f.extended)
-        else {
+        let Some(i) = self.slot_of(f.id, f.extended) else {
             self.ignored_frames += 1;
             return None;
         };
@@ -844,6 +875,7 @@ impl Mapper {
         s.stats.accepted += 1;
         s.last_good_ns = Some(t_ns);
         s.timed_out = false;
+        self.deadline_ns = self.deadline_ns.min(t_ns.saturating_add(s.timeout_ns));
         let mut c = Changed::default();
         if let Some(v) = p.steer {
             self.v_steer = Some(Sample { value: v, t_ns });
