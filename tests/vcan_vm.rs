@@ -4,7 +4,7 @@
 //!
 //! 1. the host has a CAN interface (`SHIMMY_VCAN_IF`, default `vcan0`), or can create `vcan0`
 //!    (root and a kernel with the vcan module): `tests/vcan/vm.sh --host` builds the suite
-//!    statically and runs it here with `SHIMMY_REQUIRE_VCAN=1`;
+//!    (the workspace's release test build) and runs it here with `SHIMMY_REQUIRE_VCAN=1`;
 //! 2. otherwise, if QEMU and a static busybox are installed: `tests/vcan/vm.sh --vm` boots
 //!    Debian's kernel with its CAN modules in QEMU and runs the suite there;
 //! 3. otherwise the test prints `SKIPPED` with the reason, except under `CI=true`, where it

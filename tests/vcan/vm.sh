@@ -14,9 +14,9 @@ usage() {
 usage: tests/vcan/vm.sh [MODE] [--suite FILE] [--step 'SELECTOR | COMMAND']...
 
 Modes (default: --vm):
-  --vm        fetch the kernel if needed, build static binaries, build the initramfs, boot QEMU
+  --vm        fetch the kernel if needed, build the suite's binaries, build the initramfs, boot QEMU
               and run the suite inside it (vcan0 is created there)
-  --host      build static binaries and run the suite on this host, which must have a CAN
+  --host      build the suite's binaries and run the suite on this host, which must have a CAN
               interface (SHIMMY_VCAN_IF, default vcan0)
   --fetch     only download Debian's kernel + CAN modules into the cache
   --prepare   fetch and build, without running anything (CI does this before the tests)
@@ -29,7 +29,7 @@ Options:
 
 Environment:
   SHIMMY_VCAN_CACHE        kernel/initramfs cache (default <workspace>/target/vcan-vm)
-  SHIMMY_VCAN_TARGET_DIR   cargo target dir for the static build (default target/vcan-static)
+  SHIMMY_VCAN_TARGET_DIR   cargo target dir of the build (default: cargo's, i.e. the workspace's)
   SHIMMY_VCAN_KERNEL_PKG   Debian kernel package (default: what linux-image-amd64 depends on)
   SHIMMY_VCAN_CMD_TIMEOUT  seconds per command inside the VM (default 300)
   SHIMMY_VCAN_VM_TIMEOUT   seconds for the whole VM run, host side (default 900)
@@ -43,7 +43,6 @@ EOF
 
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 CACHE=${SHIMMY_VCAN_CACHE:-$ROOT/target/vcan-vm}
-STATIC_TARGET=${SHIMMY_VCAN_TARGET_DIR:-$ROOT/target/vcan-static}
 SUITE=$ROOT/tests/vcan/suite.txt
 CMD_TIMEOUT=${SHIMMY_VCAN_CMD_TIMEOUT:-300}
 VM_TIMEOUT=${SHIMMY_VCAN_VM_TIMEOUT:-900}
@@ -154,39 +153,75 @@ fetch_kernel() {
     log "kernel ready: $(cat "$KDIR/ready")"
 }
 
-# ---- static binaries ------------------------------------------------------------------------------
+# ---- binaries -------------------------------------------------------------------------------------
+# The suite's executables come from the workspace's own release build, the one the test command
+# (`cargo test --workspace --release`) makes: built here with exactly its arguments and `--no-run`,
+# so under CI this build *is* the test command's build (prepared once, reused by it and by the VM
+# test), and outside CI it is what `cargo test` would have built anyway. The executables are
+# dynamically linked; the initramfs gets the loader and the shared libraries ldd names for them,
+# copied from this host at the same paths, and the executables without their debug info.
 BIN_NAMES=() BIN_PATHS=()
-build_static() {
-    local cargo=${CARGO:-cargo} i sel kind json exe name
-    # A cargo that runs us (cargo test) must not leak its flags into this separate build.
-    unset CARGO_ENCODED_RUSTFLAGS CARGO_TARGET_DIR CARGO_BUILD_TARGET
+build_bins() {
+    local cargo=${CARGO:-cargo} i json exe
+    # A cargo that runs us (cargo test) must not leak its flags into this build.
+    unset CARGO_ENCODED_RUSTFLAGS CARGO_BUILD_TARGET
+    [ -z "${SHIMMY_VCAN_TARGET_DIR:-}" ] || export CARGO_TARGET_DIR=$SHIMMY_VCAN_TARGET_DIR
+    command -v python3 >/dev/null || die "python3 not found (it reads cargo's JSON messages)"
+    log "build: cargo test --workspace --release --no-run"
+    json=$(cd "$ROOT" && "$cargo" test --workspace --release --no-run \
+        --message-format=json-render-diagnostics) || die "cargo build of the workspace failed"
+    local sel out
     for i in "${!SELECTORS[@]}"; do
         sel=${SELECTORS[$i]}
-        if [[ " $sel " == *" --test "* ]]; then kind=(test --no-run); else kind=(build); fi
-        log "static build: cargo ${kind[*]} $sel"
-        # shellcheck disable=SC2086 # the selector is a list of cargo arguments
-        json=$(cd "$ROOT" && RUSTFLAGS="-C target-feature=+crt-static" \
-            CARGO_PROFILE_RELEASE_DEBUG=0 CARGO_PROFILE_RELEASE_STRIP=debuginfo \
-            "$cargo" "${kind[@]}" --release --target "$TRIPLE" --target-dir "$STATIC_TARGET" \
-            --message-format=json-render-diagnostics $sel) || die "static build failed: $sel"
-        local found=0
-        while IFS= read -r exe; do
-            [ -n "$exe" ] || continue
-            name=$(basename "$exe")
-            # Test executables are named <target>-<16 hex digits>.
-            [[ $name =~ ^(.+)-[0-9a-f]{16}$ ]] && name=${BASH_REMATCH[1]}
-            BIN_NAMES+=("$name")
-            BIN_PATHS+=("$exe")
-            found=1
-        done < <(grep -o '"executable":"[^"]*"' <<<"$json" | sed 's/^"executable":"//; s/"$//')
-        [ $found = 1 ] || die "cargo produced no executable for: $sel"
+        # Picks the one executable the selector names from cargo's compiler-artifact messages:
+        # `--test NAME` an integration test, `--bin NAME` a binary (not its unit tests);
+        # `-p PACKAGE` narrows to that package.
+        out=$(python3 -c '
+import json, sys
+args = sys.argv[1].split()
+pkg = kind = name = None
+while args:
+    a = args.pop(0)
+    if a in ("-p", "--package"): pkg = args.pop(0)
+    elif a in ("--test", "--bin"): kind, name = a[2:], args.pop(0)
+    else: sys.exit(f"unknown selector argument {a!r}")
+if name is None: sys.exit("selector names no --test or --bin")
+found = set()
+for line in sys.stdin:
+    if not line.startswith("{"): continue
+    m = json.loads(line)
+    if m.get("reason") != "compiler-artifact" or not m.get("executable"): continue
+    t = m["target"]
+    if t["name"] != name or kind not in t["kind"]: continue
+    if kind == "bin" and m["profile"]["test"]: continue
+    pid = m["package_id"]
+    if pkg and not (f"/{pkg}#" in pid or f"#{pkg}@" in pid or pid.startswith(f"{pkg} ")): continue
+    found.add(m["executable"])
+if len(found) != 1: sys.exit(f"{len(found)} executables match: {sorted(found)}")
+print(found.pop())
+' "$sel" <<<"$json") || die "selector '$sel': ${out:-no executable}"
+        BIN_NAMES+=("$(sed 's/.*--\(test\|bin\) *\([^ ]*\).*/\2/' <<<"$sel")")
+        BIN_PATHS+=("$out")
+        log "built ${BIN_NAMES[$i]} <- $out"
     done
-    for i in "${!BIN_PATHS[@]}"; do
-        if dynamic_elf "${BIN_PATHS[$i]}"; then
-            die "${BIN_PATHS[$i]} is not statically linked"
-        fi
-        log "built ${BIN_NAMES[$i]} <- ${BIN_PATHS[$i]}"
-    done
+}
+
+# Copies executable $1 to $2 without debug info, and the shared libraries it loads (with the
+# dynamic loader) into the tree rooted at $3, at the paths they have on this host.
+install_exe() {
+    local src=$1 dst=$2 root=$3 lib
+    if command -v objcopy >/dev/null; then
+        objcopy --strip-debug "$src" "$dst"
+    else
+        cp "$src" "$dst"
+    fi
+    dynamic_elf "$src" || return 0
+    command -v ldd >/dev/null || die "ldd not found: cannot put $src's shared libraries into the VM"
+    while IFS= read -r lib; do
+        [ -e "$root$lib" ] && continue
+        mkdir -p "$root$(dirname "$lib")"
+        cp -L "$lib" "$root$lib"
+    done < <(ldd "$src" | grep -o '/[^ ]*' | sort -u)
 }
 
 # True when the suite built an executable named $1.
@@ -224,7 +259,7 @@ build_initramfs() {
     mkdir -p "$w"/{bin,proc,sys,dev,tmp,run,lib/modules}
     cp "$(command -v busybox)" "$w/bin/busybox"
     for m in "${MODULES[@]}"; do cp "$KDIR/$m.ko" "$w/lib/modules/"; done
-    for i in "${!BIN_PATHS[@]}"; do cp "${BIN_PATHS[$i]}" "$w/bin/${BIN_NAMES[$i]}"; done
+    for i in "${!BIN_PATHS[@]}"; do install_exe "${BIN_PATHS[$i]}" "$w/bin/${BIN_NAMES[$i]}" "$w"; done
     for i in "${COPIES[@]}"; do
         [ -e "$ROOT/$i" ] || die "copy: $ROOT/$i does not exist"
         mkdir -p "$w$ROOT/$(dirname "$i")"
@@ -339,13 +374,13 @@ mkdir -p "$CACHE"
 case $MODE in
     check) check_vm_tools ;;
     fetch) fetch_kernel ;;
-    prepare) read_suite; fetch_kernel; build_static ;;
-    host) read_suite; build_static; run_host ;;
+    prepare) read_suite; fetch_kernel; build_bins ;;
+    host) read_suite; build_bins; run_host ;;
     vm)
         read_suite
         check_vm_tools >&2 || die "cannot run the VM (see above)"
         fetch_kernel
-        build_static
+        build_bins
         build_initramfs
         run_vm
         ;;
