@@ -75,8 +75,9 @@ fn every_form_of_the_real_rav4_drive_is_the_rav4() {
         let id = identify_file(&cat, &dir.join("logs/comma2k19-rav4").join(f));
         assert_identified(&id, "toyota_rav4", f);
         let rav4 = id.chosen().unwrap();
-        // The mapped messages with a checksum (STEER_ANGLE_SENSOR, KINEMATICS; the wheel
-        // speeds and the brake module carry none) verified on every frame.
+        // The mapped messages with a checksum (STEER_ANGLE_SENSOR, KINEMATICS,
+        // STEER_TORQUE_SENSOR; the wheel speeds and the brake module carry none) verified on
+        // every frame.
         let verified: Vec<_> = rav4
             .messages
             .iter()
@@ -86,7 +87,7 @@ fn every_form_of_the_real_rav4_drive_is_the_rav4() {
                     .is_some_and(|c| c.verified == Some(true))
             })
             .collect();
-        assert_eq!(verified.len(), 2, "{f}: {rav4:#?}");
+        assert_eq!(verified.len(), 3, "{f}: {rav4:#?}");
         for m in verified {
             let c = m.checksum.as_ref().unwrap();
             assert_eq!(c.passed, c.checked, "{f} {}", m.name);

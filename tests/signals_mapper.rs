@@ -18,16 +18,16 @@ fn every_shipped_mapping_resolves_against_its_dbc() {
         (
             "toyota_rav4",
             "dbc/opendbc/toyota_new_mc_pt_generated.dbc",
-            4,
+            5,
         ),
-        ("vw_mqb", "dbc/opendbc/vw_mqb.dbc", 4),
+        ("vw_mqb", "dbc/opendbc/vw_mqb.dbc", 5),
         (
             "honda_civic",
             "dbc/opendbc/honda_civic_touring_2016_can_generated.dbc",
             // No KINEMATICS: its acceleration clips at 0.52 g (the mapping's comment).
-            3,
+            4,
         ),
-        ("hyundai_kia", "dbc/opendbc/hyundai_can_generated.dbc", 4),
+        ("hyundai_kia", "dbc/opendbc/hyundai_can_generated.dbc", 5),
     ];
     for (name, dbc, n_ids) in cases {
         let Some(p) = require_file(dbc) else { return };
@@ -301,7 +301,10 @@ fn vw_mapping_accepts_real_mqb_frames_and_rejects_corrupted_ones() {
             ),
         );
     }
-    let used = ["LWI_01", "ESP_21", "ESP_05", "ESP_02"];
+    let used = ["LWI_01", "ESP_21", "ESP_05", "ESP_02", "LH_EPS_03"];
+    let eps = db.messages()[db.message_by_name("LH_EPS_03").unwrap()].clone();
+    let tq = &eps.signals[eps.signal_by_name("EPS_Lenkmoment").unwrap()];
+    let tq_vz = &eps.signals[eps.signal_by_name("EPS_VZ_Lenkmoment").unwrap()];
     let lwi = db.messages()[db.message_by_name("LWI_01").unwrap()].clone();
     let mag = &lwi.signals[lwi.signal_by_name("LWI_Lenkradwinkel").unwrap()];
     let vz = &lwi.signals[lwi.signal_by_name("LWI_VZ_Lenkradwinkel").unwrap()];
@@ -328,6 +331,18 @@ fn vw_mapping_accepts_real_mqb_frames_and_rejects_corrupted_ones() {
                 negative_seen |= want < 0.0;
                 let got = m.snapshot(t).steer_angle_rad.valid().unwrap().to_degrees();
                 assert!((got - want).abs() < 1e-9, "LWI_01 #{k}: {got} vs {want}");
+            }
+            if name == "LH_EPS_03" {
+                // centi-N·m magnitude and a sign bit (1 = to the right).
+                let d = &frames[k];
+                let sign = if tq_vz.phys(d).unwrap() != 0.0 {
+                    -1.0
+                } else {
+                    1.0
+                };
+                let want = 0.01 * tq.phys(d).unwrap() * sign;
+                let got = m.snapshot(t).steer_torque_nm.valid().unwrap();
+                assert!((got - want).abs() < 1e-9, "LH_EPS_03 #{k}: {got} vs {want}");
             }
         }
     }

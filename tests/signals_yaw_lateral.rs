@@ -2,6 +2,8 @@
 //! sign bit, `invert` and `scale` compose as documented; an unmapped quantity reads
 //! `not_mapped`; a scale that is not a positive number is refused with its key named.
 
+mod signals_common;
+
 use shimmy::dbc::Database;
 use shimmy::signals::mapping::MappingConfig;
 use shimmy::signals::{Mapper, Validity};
@@ -38,19 +40,13 @@ fn mapper(steer: &str, extra: &str) -> Mapper {
 
 /// A VEH frame with yaw magnitude `yaw_deg_s` and sign bit `neg`, lateral `ay_g`.
 fn veh(t_ns: i64, yaw_deg_s: f64, neg: bool, ay_g: f64) -> Frame {
-    let (db, _) = Database::parse(DBC);
-    let m = &db.messages()[db.message_by_name("VEH").unwrap()];
-    let mut d = [0u8; 8];
-    let set = |name: &str, v: f64, d: &mut [u8]| {
-        m.signals[m.signal_by_name(name).unwrap()]
-            .encode_phys(v, d)
-            .unwrap()
-    };
-    set("SPEED", 36.0, &mut d);
-    set("YAW", yaw_deg_s, &mut d);
-    set("YAW_SIGN", neg as u8 as f64, &mut d);
-    set("AY", ay_g, &mut d);
-    Frame::classic(t_ns, 257, false, &d).unwrap()
+    let values = [
+        ("SPEED", 36.0),
+        ("YAW", yaw_deg_s),
+        ("YAW_SIGN", neg as u8 as f64),
+        ("AY", ay_g),
+    ];
+    signals_common::encode_frame(DBC, "VEH", &values, t_ns)
 }
 
 #[test]

@@ -40,7 +40,7 @@ const SHIPPED: [&str; 5] = [
     "hyundai_kia",
 ];
 use shimmy::signals::checksum::ChecksumKind;
-use shimmy::signals::{Mapper, Outcome};
+use shimmy::signals::{Mapper, Outcome, Update};
 use shimmy::source::log::LogReader;
 use shimmy::source::CanSource;
 use shimmy::wire::Frame;
@@ -206,6 +206,7 @@ fn end_to_end(name: &str) -> Option<Drive> {
     let step = p.sensor.step_deg;
     let sas_offset = d.truth.sensors.sas_offset_deg;
     let (mut n_steer, mut n_speed, mut n_accel, mut n_brake) = (0, 0, 0, 0);
+    let mut n_torque = 0;
     let mut steer_sum = 0.0;
     for f in &d.frames {
         let Some(u) = mapper.on_frame(f) else {
@@ -270,6 +271,18 @@ fn end_to_end(name: &str) -> Option<Drive> {
             );
             n_brake += 1;
         }
+        if ch.steer_torque {
+            // The mapping's torque is what the bus put on the wire: the plant's torsion-bar
+            // torque, 0.02 N·m noise (5 σ) and the signal's step.
+            let got = snap.steer_torque_nm.value.unwrap();
+            assert!(
+                (got - s.steer_torque_nm).abs() <= 0.11,
+                "{name}: steering torque {got:.3} N·m decoded, plant {:.3} at {}",
+                s.steer_torque_nm,
+                f.t_ns
+            );
+            n_torque += 1;
+        }
         if ch.brake_pressure {
             let got_bar = snap.brake_pressure_pa.value.unwrap() * 1e-5;
             let want = s.pedal_decel_mps2 / firmware_sim::drive::G * 90.0;
@@ -297,6 +310,9 @@ fn end_to_end(name: &str) -> Option<Drive> {
     assert!(accepted > 1_000 && n_steer > 500 && n_speed > 200 && n_brake > 200);
     if map.accel.is_some() {
         assert!(n_accel > 200, "{name}: {n_accel} acceleration frames");
+    }
+    if map.steer_torque.is_some() {
+        assert!(n_torque > 200, "{name}: {n_torque} steering torque frames");
     }
     // The driver holds 6° to the left: + left on the monitor's side.
     assert!(
@@ -757,7 +773,7 @@ fn the_column_torque_reaches_the_bus() {
     assert!(r > 0.01 && r < 0.04, "no column: rms {r} N·m");
 
     p.vehicle.column.enabled = true;
-    let on = torque(&drive(p));
+    let on = torque(&drive(p.clone()));
     // §15's T_c: about 0.1 N·m of shimmy while braking at 0.2 mm, little in between.
     let peak = on.iter().map(|x| x.1.abs()).fold(0.0, f64::max);
     assert!(peak > 0.05, "column: plant torque peak {peak} N·m");
@@ -767,6 +783,25 @@ fn the_column_torque_reaches_the_bus() {
             "decoded {got} N·m, plant {want}"
         );
     }
+    // The profile's mapping reads the same torque, in N·m and the monitor's sign.
+    let d = drive(p);
+    let mut mapper = Mapper::new(&d.db, &d.profile.mapping).unwrap();
+    let mut n = 0;
+    for f in &d.frames {
+        if let Some(Update {
+            outcome: Outcome::Accepted(ch),
+            ..
+        }) = mapper.on_frame(f)
+        {
+            if ch.steer_torque {
+                let got = mapper.snapshot(f.t_ns).steer_torque_nm.value.unwrap();
+                let want = d.samples[&(f.id, f.t_ns)].steer_torque_nm;
+                assert!((got - want).abs() <= 0.11, "mapped {got} N·m, plant {want}");
+                n += 1;
+            }
+        }
+    }
+    assert!(n > 1_000, "{n} torque frames mapped");
     // The sign too: the decoded torque follows the plant's.
     let dot: f64 = on.iter().map(|(g, w)| g * w).sum();
     let (rg, rw) = (

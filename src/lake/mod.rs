@@ -65,17 +65,22 @@ pub fn sha256_file(path: &Path) -> anyhow::Result<String> {
     let mut f =
         std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
     let mut h = Sha256::new();
+    hash_to_end(&mut f, &mut h, path)?;
+    Ok(hex(&h.finalize()))
+}
+
+/// Feeds the rest of `r` (the file `path`) into `h`.
+fn hash_to_end(r: &mut impl Read, h: &mut Sha256, path: &Path) -> anyhow::Result<()> {
     let mut buf = vec![0u8; 1 << 20];
     loop {
-        let n = f
+        let n = r
             .read(&mut buf)
             .with_context(|| format!("reading {}", path.display()))?;
         if n == 0 {
-            break;
+            return Ok(());
         }
         h.update(&buf[..n]);
     }
-    Ok(hex(&h.finalize()))
 }
 
 /// A reader that hashes what it reads: the log's sha256 in the pass that parses it.
@@ -130,16 +135,7 @@ fn open_hashed(
             .with_context(|| format!("cannot open {}", path.display()))?;
         f.seek(std::io::SeekFrom::Start(read))
             .with_context(|| format!("reading {}", path.display()))?;
-        let mut buf = vec![0u8; 1 << 16];
-        loop {
-            let n = f
-                .read(&mut buf)
-                .with_context(|| format!("reading {}", path.display()))?;
-            if n == 0 {
-                break;
-            }
-            h.update(&buf[..n]);
-        }
+        hash_to_end(&mut f, &mut h, &path)?;
         Ok(hex(&h.finalize()))
     };
     Ok((src, Box::new(finish)))

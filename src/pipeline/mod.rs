@@ -237,6 +237,7 @@ mod tests {
             accel_mps2: reading(Some(-3.0)),
             yaw_rate_radps: reading(None),
             lat_accel_mps2: reading(None),
+            steer_torque_nm: reading(None),
         }
     }
 

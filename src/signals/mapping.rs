@@ -33,6 +33,12 @@
 //! sign_signal = "ESP_VZ_Gierrate"
 //! unit = "deg/s"
 //!
+//! [steer_torque]                 # optional: the driver's (torsion-bar) torque
+//! message = "LH_EPS_03"
+//! signal = "EPS_Lenkmoment"
+//! sign_signal = "EPS_VZ_Lenkmoment"
+//! unit = "cNm"
+//!
 //! [messages.LWI_01]              # optional per-message protection
 //! timeout_ms = 50
 //! checksum = "vw_mqb"
@@ -89,6 +95,10 @@ pub struct MappingConfig {
     /// Lateral acceleration, positive to the left (optional; used by `shimmy doctor` only).
     #[serde(default)]
     pub lat_accel: Option<AccelMap>,
+    /// The driver's steering torque as the EPS torque sensor (torsion bar) reads it, positive
+    /// when the driver turns the rim to the left (optional).
+    #[serde(default)]
+    pub steer_torque: Option<TorqueMap>,
     /// Per-message protection, keyed by DBC message name.
     #[serde(default)]
     pub messages: BTreeMap<String, MessageRules>,
@@ -128,16 +138,16 @@ fn is_one(x: &f64) -> bool {
     *x == 1.0
 }
 
-/// Yaw rate: `signal`, negated when `sign_signal` is non-zero, negated again when `invert`,
-/// times `scale`. Positive is counter-clockwise seen from above (turning left) after these
-/// rules, like the steering angle.
+/// A signed quantity in one signal: `signal`, negated when `sign_signal` is non-zero, negated
+/// again when `invert`, times `scale`, in `unit`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct YawRateMap {
+pub struct SignedMap<U> {
     pub message: String,
     pub signal: String,
-    pub unit: RateUnit,
-    /// A separate sign bit (VW `ESP_VZ_Gierrate`): non-zero means negative.
+    pub unit: U,
+    /// A separate sign bit (VW `ESP_VZ_Gierrate`, `EPS_VZ_Lenkmoment`): non-zero means
+    /// negative.
     #[serde(default)]
     pub sign_signal: Option<String>,
     #[serde(default)]
@@ -145,6 +155,16 @@ pub struct YawRateMap {
     #[serde(default = "one", skip_serializing_if = "is_one")]
     pub scale: f64,
 }
+
+/// Yaw rate ([`SignedMap`]). Positive is counter-clockwise seen from above (turning left) after
+/// the sign rules, like the steering angle.
+pub type YawRateMap = SignedMap<RateUnit>;
+
+/// Steering torque ([`SignedMap`]). Positive is the driver turning the rim to the left (the
+/// torsion bar twisted with the rim ahead of the pinion, counter-clockwise) after the sign
+/// rules. Many DBCs give the torque in sensor counts without a unit (Toyota's
+/// `STEER_TORQUE_DRIVER`): `scale` then holds N·m per count, and `unit = "Nm"`.
+pub type TorqueMap = SignedMap<TorqueUnit>;
 
 /// Vehicle speed: either one `signal`, or the mean of `wheel_signals` (all in `message`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -239,6 +259,25 @@ impl RateUnit {
         match self {
             RateUnit::DegPerS => v.to_radians(),
             RateUnit::RadPerS => v,
+        }
+    }
+}
+
+/// Torque units.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum TorqueUnit {
+    #[serde(rename = "Nm", alias = "N.m", alias = "N*m")]
+    Nm,
+    /// Centinewton-metres (VW's `Unit_centiNewtoMeter`).
+    #[serde(rename = "cNm")]
+    CNm,
+}
+
+impl TorqueUnit {
+    pub fn to_si(self, v: f64) -> f64 {
+        match self {
+            TorqueUnit::Nm => v,
+            TorqueUnit::CNm => v * 0.01,
         }
     }
 }
@@ -351,6 +390,7 @@ impl MappingConfig {
             ("accel", self.accel.as_ref().map(|a| a.scale)),
             ("yaw_rate", self.yaw_rate.as_ref().map(|a| a.scale)),
             ("lat_accel", self.lat_accel.as_ref().map(|a| a.scale)),
+            ("steer_torque", self.steer_torque.as_ref().map(|a| a.scale)),
         ];
         for (key, scale) in scales {
             if let Some(k) = scale {
@@ -385,6 +425,7 @@ impl MappingConfig {
             self.accel.as_ref().map(|a| a.message.as_str()),
             self.yaw_rate.as_ref().map(|a| a.message.as_str()),
             self.lat_accel.as_ref().map(|a| a.message.as_str()),
+            self.steer_torque.as_ref().map(|a| a.message.as_str()),
         ];
         for m in all.into_iter().flatten() {
             if !v.contains(&m) {

@@ -36,7 +36,8 @@ use crate::wire::{Frame, FrameKind};
 
 use checksum::{ChecksumError, ChecksumKind};
 use mapping::{
-    AccelUnit, AngleUnit, MappingConfig, PressureUnit, RateUnit, SpeedUnit, STANDARD_GRAVITY_MPS2,
+    AccelUnit, AngleUnit, MappingConfig, PressureUnit, RateUnit, SpeedUnit, TorqueUnit,
+    STANDARD_GRAVITY_MPS2,
 };
 
 /// Whether a quantity can be used now.
@@ -100,6 +101,8 @@ pub struct VehicleSignals {
     pub yaw_rate_radps: Reading<f64>,
     /// Lateral acceleration, positive to the left (m/s²).
     pub lat_accel_mps2: Reading<f64>,
+    /// The driver's steering torque at the torsion bar, positive turning left (N·m).
+    pub steer_torque_nm: Reading<f64>,
 }
 
 /// Which quantities a frame updated.
@@ -112,6 +115,7 @@ pub struct Changed {
     pub accel: bool,
     pub yaw_rate: bool,
     pub lat_accel: bool,
+    pub steer_torque: bool,
 }
 
 /// Why a frame of a mapped message was not used.
@@ -229,15 +233,36 @@ struct SteerQ {
     unit: AngleUnit,
 }
 
+/// A resolved [`mapping::SignedMap`].
 #[derive(Clone, Debug)]
-struct YawQ {
+struct SignedQ<U> {
     slot: usize,
     sig: Sig,
     sign: Option<Sig>,
     invert: bool,
     scale: f64,
-    unit: RateUnit,
+    unit: U,
 }
+
+impl<U> SignedQ<U> {
+    /// The value in the map's unit: the signal, negated by the sign bit and by `invert`,
+    /// times `scale`.
+    fn value(&self, data: &[u8]) -> Option<f64> {
+        let mut v = self.sig.phys(data)?;
+        if let Some(sg) = &self.sign {
+            if sg.phys(data)? != 0.0 {
+                v = -v;
+            }
+        }
+        if self.invert {
+            v = -v;
+        }
+        Some(self.scale * v)
+    }
+}
+
+type YawQ = SignedQ<RateUnit>;
+type TorqueQ = SignedQ<TorqueUnit>;
 
 #[derive(Clone, Debug)]
 enum SpeedSrc {
@@ -314,6 +339,7 @@ struct Pending {
     pressed: Option<bool>,
     accel: Option<f64>,
     yaw: Option<f64>,
+    torque: Option<f64>,
     lat: Option<f64>,
 }
 
@@ -328,6 +354,7 @@ pub struct Mapper {
     pressed: Option<FlagQ>,
     accel: Option<AccelQ>,
     yaw: Option<YawQ>,
+    torque: Option<TorqueQ>,
     lat: Option<AccelQ>,
     v_steer: Option<Sample<f64>>,
     v_speed: Option<Sample<f64>>,
@@ -335,6 +362,7 @@ pub struct Mapper {
     v_pressed: Option<Sample<bool>>,
     v_accel: Option<Sample<f64>>,
     v_yaw: Option<Sample<f64>>,
+    v_torque: Option<Sample<f64>>,
     v_lat: Option<Sample<f64>>,
     warnings: Vec<String>,
     /// Latest frame time seen (drives timeouts).
@@ -439,6 +467,28 @@ impl<'a> Resolver<'a> {
     }
 
     /// Note when the DBC's unit for a signal contradicts the mapping's.
+    /// Resolves a [`mapping::SignedMap`] under the mapping key `key`.
+    fn signed<U: Copy>(
+        &mut self,
+        key: &str,
+        m: &mapping::SignedMap<U>,
+    ) -> anyhow::Result<SignedQ<U>> {
+        let (slot, msg) = self.slot(&format!("{key}.message"), &m.message)?;
+        let sig = self.signal(&format!("{key}.signal"), msg, &m.signal)?;
+        let sign = match &m.sign_signal {
+            Some(s) => Some(self.signal(&format!("{key}.sign_signal"), msg, s)?),
+            None => None,
+        };
+        Ok(SignedQ {
+            slot,
+            sig,
+            sign,
+            invert: m.invert,
+            scale: m.scale,
+            unit: m.unit,
+        })
+    }
+
     fn check_unit(&mut self, key: &str, sig: &Sig, declared: &str, accepted: &[&str]) {
         let u = sig.signal.unit.trim();
         let known = [
@@ -616,23 +666,15 @@ impl Mapper {
         }
         let yaw = match &cfg.yaw_rate {
             Some(y) => {
-                let (slot, msg) = r.slot("yaw_rate.message", &y.message)?;
-                let sig = r.signal("yaw_rate.signal", msg, &y.signal)?;
+                let q: YawQ = r.signed("yaw_rate", y)?;
                 let (name, ok) = rate_units(y.unit);
-                r.check_unit("yaw_rate.unit", &sig, name, ok);
-                let sign = match &y.sign_signal {
-                    Some(s) => Some(r.signal("yaw_rate.sign_signal", msg, s)?),
-                    None => None,
-                };
-                Some(YawQ {
-                    slot,
-                    sig,
-                    sign,
-                    invert: y.invert,
-                    scale: y.scale,
-                    unit: y.unit,
-                })
+                r.check_unit("yaw_rate.unit", &q.sig, name, ok);
+                Some(q)
             }
+            None => None,
+        };
+        let torque: Option<TorqueQ> = match &cfg.steer_torque {
+            Some(q) => Some(r.signed("steer_torque", q)?),
             None => None,
         };
 
@@ -653,12 +695,14 @@ impl Mapper {
             accel,
             yaw,
             lat,
+            torque,
             v_steer: None,
             v_speed: None,
             v_pressure: None,
             v_pressed: None,
             v_accel: None,
             v_yaw: None,
+            v_torque: None,
             v_lat: None,
             warnings: r.warnings,
             now_ns: None,
@@ -855,16 +899,12 @@ impl Mapper {
         }
         if let Some(q) = &self.yaw {
             if q.slot == i {
-                let mut v = q.sig.phys(data)?;
-                if let Some(sg) = &q.sign {
-                    if sg.phys(data)? != 0.0 {
-                        v = -v;
-                    }
-                }
-                if q.invert {
-                    v = -v;
-                }
-                p.yaw = Some(q.unit.to_si(q.scale * v));
+                p.yaw = Some(q.unit.to_si(q.value(data)?));
+            }
+        }
+        if let Some(q) = &self.torque {
+            if q.slot == i {
+                p.torque = Some(q.unit.to_si(q.value(data)?));
             }
         }
         Some(p)
@@ -904,6 +944,10 @@ impl Mapper {
         if let Some(v) = p.lat {
             self.v_lat = Some(Sample { value: v, t_ns });
             c.lat_accel = true;
+        }
+        if let Some(v) = p.torque {
+            self.v_torque = Some(Sample { value: v, t_ns });
+            c.steer_torque = true;
         }
         c
     }
@@ -946,6 +990,10 @@ impl Mapper {
             },
             lat_accel_mps2: match &self.lat {
                 Some(q) => self.reading(q.slot, self.v_lat, t_ns),
+                None => Reading::not_mapped(),
+            },
+            steer_torque_nm: match &self.torque {
+                Some(q) => self.reading(q.slot, self.v_torque, t_ns),
                 None => Reading::not_mapped(),
             },
         }

@@ -39,3 +39,21 @@ pub fn log_frames(path: &std::path::Path) -> Vec<Frame> {
     assert_eq!(r.stats().malformed, 0);
     out
 }
+
+/// A frame of message `msg` of the DBC text `dbc` with the given physical values (the other
+/// bits zero), at `t_ns`.
+pub fn encode_frame(dbc: &str, msg: &str, values: &[(&str, f64)], t_ns: i64) -> Frame {
+    let (db, _) = Database::parse(dbc);
+    let m = &db.messages()[db
+        .message_by_name(msg)
+        .unwrap_or_else(|| panic!("no message {msg}"))];
+    let mut d = [0u8; 8];
+    for (name, v) in values {
+        m.signals[m
+            .signal_by_name(name)
+            .unwrap_or_else(|| panic!("no signal {name} in {msg}"))]
+        .encode_phys(*v, &mut d)
+        .unwrap();
+    }
+    Frame::classic(t_ns, m.id, m.extended, &d[..m.size_bytes.min(8)]).unwrap()
+}
