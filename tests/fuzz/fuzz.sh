@@ -40,7 +40,7 @@ die() { echo "fuzz.sh: error: $*" >&2; exit 1; }
 
 # The calling `cargo test` exports its toolchain and flags; the fuzz build is its own.
 unset RUSTUP_TOOLCHAIN RUSTC RUSTDOC RUSTC_WRAPPER RUSTFLAGS CARGO_ENCODED_RUSTFLAGS \
-    CARGO_TARGET_DIR CARGO_BUILD_TARGET CARGO CARGO_MANIFEST_DIR 2>/dev/null || true
+    CARGO_TARGET_DIR CARGO_BUILD_TARGET CARGO CARGO_MANIFEST_DIR OUT_DIR 2>/dev/null || true
 
 missing() {
     local m=()

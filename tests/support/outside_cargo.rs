@@ -3,16 +3,18 @@
 //! cargo sets for the test itself.
 //!
 //! What it is for: `.ci/run` builds those artifacts before `cargo test` runs; seen by the inner
-//! build, cargo's test variables (`CARGO_*` but `CARGO_HOME`) change what build scripts
-//! see, so they rerun and the inner build starts from scratch instead of reusing that work.
+//! build, cargo's test variables (`CARGO_*` but `CARGO_HOME`, and `OUT_DIR`, which cargo sets
+//! for the tests of a package with a build script) change what build scripts see (ring's asks
+//! to rerun when `OUT_DIR` or `CARGO_MANIFEST_DIR` differ from the outer cargo's), so they rerun
+//! and the inner build recompiles ring and everything above it instead of reusing that work.
 
 use std::process::Command;
 
-/// `cmd` without cargo's test variables (`CARGO_*` but `CARGO_HOME`).
+/// `cmd` without cargo's test variables (`CARGO_*` but `CARGO_HOME`, and `OUT_DIR`).
 pub fn outside_cargo(mut cmd: Command) -> Command {
     for (k, _) in std::env::vars_os() {
         let k = k.to_string_lossy().into_owned();
-        if k.starts_with("CARGO") && k != "CARGO_HOME" {
+        if (k.starts_with("CARGO") && k != "CARGO_HOME") || k == "OUT_DIR" {
             cmd.env_remove(k);
         }
     }

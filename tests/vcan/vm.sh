@@ -164,7 +164,7 @@ BIN_NAMES=() BIN_PATHS=()
 build_bins() {
     local cargo=${CARGO:-cargo} i json exe
     # A cargo that runs us (cargo test) must not leak its flags into this build.
-    unset CARGO_ENCODED_RUSTFLAGS CARGO_BUILD_TARGET
+    unset CARGO_ENCODED_RUSTFLAGS CARGO_BUILD_TARGET OUT_DIR
     [ -z "${SHIMMY_VCAN_TARGET_DIR:-}" ] || export CARGO_TARGET_DIR=$SHIMMY_VCAN_TARGET_DIR
     command -v python3 >/dev/null || die "python3 not found (it reads cargo's JSON messages)"
     log "build: cargo test --workspace --release --no-run"
