@@ -96,6 +96,20 @@ fn every_grammar_feature_in_one_file() {
     assert_eq!(skips[0].location, "mixed.log:11");
 }
 
+/// Drop counts a log states are added up without overflowing (a fuzzed log with two counts
+/// near u64::MAX panicked a debug build): the total saturates.
+#[test]
+fn huge_drop_counts_saturate_instead_of_overflowing() {
+    let text = "(1.000000) can0 123#11\n\
+                DROPCOUNT: dropped 18446744073709551000 CAN frames on 'can0' socket\n\
+                DROPCOUNT: dropped 99999999999999999999999 CAN frames on 'can0' socket\n\
+                (1.000001) can0 123#22\n";
+    let mut r = reader_for(text, "drops.log");
+    let frames = read_all(&mut r);
+    assert_eq!(frames.len(), 2);
+    assert_eq!(r.stats().dropped, u64::MAX);
+}
+
 #[test]
 fn malformed_lines_are_counted_located_and_replay_goes_on() {
     let text = "(1.000000) can0 123#11\n\

@@ -44,6 +44,7 @@ fn rav4_log_prints_every_mapped_frame_with_validity() {
     let mut n = 0;
     let (mut lo, mut hi) = (f64::MAX, f64::MIN);
     let mut steer_frames = 0;
+    let (mut torque_frames, mut tq_lo, mut tq_hi) = (0, f64::MAX, f64::MIN);
     for line in out.lines() {
         let v: serde_json::Value = serde_json::from_str(line).unwrap();
         n += 1;
@@ -56,6 +57,13 @@ fn rav4_log_prints_every_mapped_frame_with_validity() {
             lo = lo.min(a);
             hi = hi.max(a);
         }
+        if v["msg"] == "STEER_TORQUE_SENSOR" {
+            torque_frames += 1;
+            assert_eq!(v["validity"]["steer_torque"], "valid");
+            let t = v["steer_torque_nm"].as_f64().unwrap();
+            tq_lo = tq_lo.min(t);
+            tq_hi = tq_hi.max(t);
+        }
         if let Some(b) = v["brake_pressed"].as_bool() {
             assert!(!b, "no braking in this log");
         }
@@ -64,9 +72,12 @@ fn rav4_log_prints_every_mapped_frame_with_validity() {
             assert!((28.0..=72.0).contains(&s), "{s}");
         }
     }
-    // STEER_ANGLE_SENSOR, WHEEL_SPEEDS and KINEMATICS at 83 Hz, BRAKE_MODULE at 41 Hz.
-    assert_eq!(n, 4974 + 4974 + 2487 + 4974);
+    // STEER_ANGLE_SENSOR, WHEEL_SPEEDS and KINEMATICS at 83 Hz, BRAKE_MODULE at 41 Hz,
+    // STEER_TORQUE_SENSOR at 50 Hz.
+    assert_eq!(n, 4974 + 4974 + 2487 + 4974 + 3000);
     assert_eq!(steer_frames, 4974);
+    // STEER_TORQUE_DRIVER spans -149..138 counts, at the mapping's 100 counts per N·m.
+    assert_eq!((torque_frames, tq_lo, tq_hi), (3000, -1.49, 1.38));
     assert_eq!((lo, hi), (-4.6, 2.5));
     assert!(
         err.contains("STEER_ANGLE_SENSOR (0x25): 4974 frames, 4974 accepted, 0 checksum errors"),
@@ -147,11 +158,14 @@ fn faults_are_shown_per_frame_and_counted_in_the_summary() {
     assert!(ok, "{err}");
     let rows: Vec<Vec<&str>> = out.lines().map(|l| l.split(',').collect()).collect();
     assert_eq!(rows[0][0], "t");
-    assert_eq!(rows[0].len(), 13);
-    let rejected: Vec<&Vec<&str>> = rows[1..].iter().filter(|r| !r[12].is_empty()).collect();
+    assert_eq!(rows[0].len(), 15);
+    assert_eq!(rows[0][14], "rejected");
+    let rejected: Vec<&Vec<&str>> = rows[1..].iter().filter(|r| !r[14].is_empty()).collect();
     assert_eq!(rejected.len(), 2, "{rejected:?}");
-    assert!(rejected[0][12].starts_with("checksum"), "{:?}", rejected[0]);
-    assert!(rejected[1][12].contains("repeated"), "{:?}", rejected[1]);
+    assert!(rejected[0][14].starts_with("checksum"), "{:?}", rejected[0]);
+    assert!(rejected[1][14].contains("repeated"), "{:?}", rejected[1]);
+    // The reference bus carries no torque: the column says so on every row.
+    assert!(rows[1..].iter().all(|r| r[13] == "not_mapped"));
     // During the outage the speed rows show the steering angle timed out, and no value.
     let timed_out: Vec<&Vec<&str>> = rows[1..].iter().filter(|r| r[3] == "timed_out").collect();
     assert!(!timed_out.is_empty());

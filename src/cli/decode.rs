@@ -50,7 +50,7 @@ pub struct Args {
     /// Signal mapping (TOML, e.g. config/vehicles/*/mapping.toml) to print the monitor's quantities instead
     /// of raw signals: one record per frame of a mapped message, with steering-wheel angle
     /// (deg), speed (km/h), brake pressure (bar), brake pressed, longitudinal acceleration
-    /// (m/s^2), each with its validity (valid, no_data, timed_out, not_mapped; a value is
+    /// (m/s^2), the driver's steering torque (N·m), each with its validity (valid, no_data, timed_out, not_mapped; a value is
     /// printed only while valid), and why the frame was rejected if it was (checksum, counter,
     /// short). The summary lists, per message, frames, accepted, checksum and counter errors,
     /// counter gaps, short frames and timeouts.
@@ -122,7 +122,7 @@ impl Summary {
         self.source.skipped += s.skipped;
         self.source.error_frames += s.error_frames;
         self.source.backwards_timestamps += s.backwards_timestamps;
-        self.source.dropped += s.dropped;
+        self.source.dropped = self.source.dropped.saturating_add(s.dropped);
     }
 
     /// The human summary printed at the end.
@@ -514,7 +514,7 @@ pub fn write_mapped_header<W: Write>(w: &mut W, format: Format) -> io::Result<()
         w.write_all(
             b"t,msg,steer_angle_deg,steer_angle_validity,speed_kmh,speed_validity,\
 brake_pressure_bar,brake_pressure_validity,brake_pressed,brake_pressed_validity,\
-accel_mps2,accel_validity,rejected\n",
+accel_mps2,accel_validity,steer_torque_nm,steer_torque_validity,rejected\n",
         )?;
     }
     Ok(())
@@ -562,7 +562,7 @@ impl MappedSummary {
         self.source.skipped += s.skipped;
         self.source.error_frames += s.error_frames;
         self.source.backwards_timestamps += s.backwards_timestamps;
-        self.source.dropped += s.dropped;
+        self.source.dropped = self.source.dropped.saturating_add(s.dropped);
     }
 }
 
@@ -581,6 +581,7 @@ fn write_mapped<W: Write>(
     let speed = s.speed_mps.valid().map(|v| edge(v * 3.6));
     let pressure = s.brake_pressure_pa.valid().map(|v| edge(v * 1e-5));
     let accel = s.accel_mps2.valid().map(edge);
+    let torque = s.steer_torque_nm.valid().map(edge);
     let nums = [
         (
             "steer_angle_deg",
@@ -618,15 +619,21 @@ fn write_mapped<W: Write>(
                 Some(v) => write_num(out, v, format)?,
                 None => out.write_all(b"null")?,
             }
+            out.write_all(b", \"steer_torque_nm\": ")?;
+            match torque {
+                Some(v) => write_num(out, v, format)?,
+                None => out.write_all(b"null")?,
+            }
             out.write_all(b", \"validity\": {")?;
             for (_, quantity, _, v) in nums {
                 write!(out, "\"{quantity}\": \"{}\", ", validity_str(v))?;
             }
             write!(
                 out,
-                "\"brake_pressed\": \"{}\", \"accel\": \"{}\"}}",
+                "\"brake_pressed\": \"{}\", \"accel\": \"{}\", \"steer_torque\": \"{}\"}}",
                 validity_str(s.brake_pressed.validity),
-                validity_str(s.accel_mps2.validity)
+                validity_str(s.accel_mps2.validity),
+                validity_str(s.steer_torque_nm.validity)
             )?;
             if let Some(r) = rejected {
                 // Reject texts hold no characters that need JSON escaping.
@@ -654,6 +661,10 @@ fn write_mapped<W: Write>(
                 write_num(out, v, format)?;
             }
             write!(out, ",{},", validity_str(s.accel_mps2.validity))?;
+            if let Some(v) = torque {
+                write_num(out, v, format)?;
+            }
+            write!(out, ",{},", validity_str(s.steer_torque_nm.validity))?;
             if let Some(r) = rejected {
                 // Reject texts hold no commas or quotes.
                 write!(out, "{r}")?;

@@ -104,5 +104,5 @@ pub fn add(a: &mut SourceStats, b: &SourceStats) {
     a.skipped += b.skipped;
     a.error_frames += b.error_frames;
     a.backwards_timestamps += b.backwards_timestamps;
-    a.dropped += b.dropped;
+    a.dropped = a.dropped.saturating_add(b.dropped);
 }

@@ -55,7 +55,7 @@ impl RunStats {
         self.log.skipped += st.skipped;
         self.log.error_frames += st.error_frames;
         self.log.backwards_timestamps += st.backwards_timestamps;
-        self.log.dropped += st.dropped;
+        self.log.dropped = self.log.dropped.saturating_add(st.dropped);
     }
 }
 

@@ -421,7 +421,7 @@ impl LogReader {
                     return Ok(true);
                 }
                 Step::Nothing => {}
-                Step::Dropped(n) => self.stats.dropped += n,
+                Step::Dropped(n) => self.stats.dropped = self.stats.dropped.saturating_add(n),
                 Step::Skipped(at, reason) => {
                     self.stats.skipped += 1;
                     if !reason.is_empty() {
