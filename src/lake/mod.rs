@@ -399,7 +399,7 @@ impl Exporter {
                 table_sha256: self.inputs.table_sha256.clone(),
                 dbc_sha256: self.inputs.dbc_sha256.clone(),
             };
-            closed.extend(self.write_log_rows(index, &stamp, &rows, &schemas, run)?);
+            closed.extend(self.write_log_rows(index, &stamp, &rows, &schemas)?);
         }
         closed.into_iter().map(write::Closed::commit).collect()
     }
@@ -410,7 +410,6 @@ impl Exporter {
         stamp: &Stamp,
         rows: &MonitorRows,
         schemas: &[arrow_schema::SchemaRef; 3],
-        run: &str,
     ) -> anyhow::Result<Vec<write::Closed>> {
         let mut closed = Vec::new();
         for (day, batches) in rows.batches(stamp)? {
@@ -422,7 +421,7 @@ impl Exporter {
                     .join(name)
                     .join(format!("vehicle={}", self.inputs.vehicle))
                     .join(format!("date={y:04}-{m:02}-{d:02}"))
-                    .join(format!("{}-{index:04}.parquet", &run[..16]));
+                    .join(format!("{}-{index:04}.parquet", &stamp.run_sha256[..16]));
                 closed.push(write::write_file(dest, schema.clone(), &[batch])?);
             }
         }
