@@ -213,6 +213,9 @@ pub struct Observer {
     ignored_seen: u64,
     unused: UnusedCounts,
     used_total: u64,
+    /// Whether each used event goes into the estimator here (placed on the detector's
+    /// odometer), or the caller feeds it ([`Self::new_caller_fed`]).
+    feeds_estimator: bool,
 }
 
 impl Observer {
@@ -236,8 +239,56 @@ impl Observer {
             ignored_seen: 0,
             unused: UnusedCounts::default(),
             used_total: 0,
+            feeds_estimator: true,
             cfg,
         })
+    }
+
+    /// As [`Self::new`], but the used events do not reach the estimator by themselves: the
+    /// caller adds them with [`Self::feed_estimator`], placed on its own odometer, and can
+    /// start the posterior afresh with [`Self::reset_estimator`] (a daemon that restores its
+    /// posterior from saved evidence). [`Self::report`] then reports what the caller fed.
+    pub fn new_caller_fed(
+        cfg: ObserverConfig,
+        table: Option<ResponseTable>,
+    ) -> anyhow::Result<Observer> {
+        let mut obs = Self::new(cfg, table)?;
+        obs.feeds_estimator = false;
+        Ok(obs)
+    }
+
+    /// Adds one used event's features (MODEL.md §11: band-passed steering-wheel RMS and peak,
+    /// the pre-brake cruise RMS, in degrees) at odometer `odometer_m` (its brake onset) to the
+    /// estimator. No-op without a response table.
+    #[allow(clippy::too_many_arguments)]
+    pub fn feed_estimator(
+        &mut self,
+        rms_deg: f64,
+        peak_deg: f64,
+        cruise_rms_deg: Option<f64>,
+        v0_kmh: f64,
+        decel_g: f64,
+        odometer_m: f64,
+    ) {
+        if let (Some(est), Some(t)) = (self.estimator.as_mut(), self.table.as_ref()) {
+            est.update_event(
+                t,
+                rms_deg,
+                peak_deg,
+                cruise_rms_deg,
+                v0_kmh,
+                decel_g,
+                odometer_m,
+            );
+        }
+    }
+
+    /// Replaces the estimator with a fresh one (no evidence). No-op without a response table.
+    pub fn reset_estimator(&mut self) -> anyhow::Result<()> {
+        if let Some(t) = self.table.as_ref() {
+            self.estimator = Some(Estimator::new(t, self.cfg.estimator.clone())?);
+        }
+        Ok(())
     }
 
     pub fn push(&mut self, s: &Sample) {
@@ -362,7 +413,8 @@ impl Observer {
             (false, None) => {}
         }
         let amp = feats.as_ref().map(|f| self.amplitude_deg(f));
-        if let (true, Some(f), Some(est), Some(t)) = (
+        if let (true, true, Some(f), Some(est), Some(t)) = (
+            self.feeds_estimator,
             used,
             feats.as_ref(),
             self.estimator.as_mut(),

@@ -5,15 +5,14 @@
 //! ([`super::Monitor`], [`super::finish_event`]), so the alert rules see the same events and
 //! estimates in both.
 //!
-//! Persistence across restarts (shimmyd's state file): the clearance posterior the stage reports
-//! is held by this adapter's own [`Estimator`] (the observer's public estimator type, same
-//! table and `[estimator]` settings), fed with each used event's features exactly as the
-//! observer feeds its own, with the caller's odometer at the event's brake onset as the distance
-//! for the wear model. [`EventStage::save`] returns the estimator's evidence, one [`Evidence`]
-//! per used event, and [`EventStage::restore`] replays it into a fresh estimator, so an estimate
+//! Persistence across restarts (shimmyd's state file): the observer runs caller-fed
+//! ([`Observer::new_caller_fed`]): this adapter hands its estimator each used event's features,
+//! placed at the caller's odometer at the event's brake onset (the distance the wear model
+//! sees), and keeps them. [`EventStage::save`] returns that evidence, one [`Evidence`] per used
+//! event, and [`EventStage::restore`] replays it into a fresh estimator, so an estimate
 //! keeps accumulating across daemon runs: two runs over logs A then B end with the same
-//! posterior as one run over A+B. (The observer's estimator exposes no way to set its posterior
-//! directly; replaying the evidence is exact.) At most [`MAX_EVIDENCE`] events are kept; past
+//! posterior as one run over A+B (replaying the evidence is exact). The observer's report and
+//! the stage's [`Estimate`] read the same estimator. At most [`MAX_EVIDENCE`] events are kept; past
 //! that the oldest are left out of the saved state, counted in [`Saved::evidence_dropped`] and
 //! named in the log line at the next start (their weight is already small after the wear
 //! model's diffusion over the distance since).
@@ -27,7 +26,6 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use crate::monitor::{Estimate, EventStage, EventSummary, RejectionSummary, Sample};
-use crate::observer::estimator::Estimator;
 use crate::observer::table::ResponseTable;
 use crate::observer::{EventOut, Observer, ObserverConfig};
 
@@ -66,12 +64,9 @@ pub struct ObserverStage {
     seen: u64,
     has_table: bool,
     clearance_mm: f64,
-    /// The posterior the daemon reports, with the table it predicts from.
-    est: Option<(Estimator, ResponseTable)>,
     evidence: VecDeque<Evidence>,
     evidence_dropped: u64,
     odometer_km: f64,
-    cfg: ObserverConfig,
 }
 
 impl ObserverStage {
@@ -84,23 +79,14 @@ impl ObserverStage {
     ) -> anyhow::Result<ObserverStage> {
         let oc = settings.clone();
         let has_table = table.is_some();
-        let est = match &table {
-            Some(t) => Some((
-                Estimator::new(t, oc.estimator.clone()).context("observer.estimator")?,
-                t.clone(),
-            )),
-            None => None,
-        };
         Ok(ObserverStage {
-            obs: Observer::new(oc.clone(), table)?,
+            obs: Observer::new_caller_fed(oc.clone(), table).context("observer.estimator")?,
             seen: 0,
             has_table,
             clearance_mm: oc.alerts.clearance_mm,
-            est,
             evidence: VecDeque::new(),
             evidence_dropped: 0,
             odometer_km: 0.0,
-            cfg: oc,
         })
     }
 
@@ -135,11 +121,10 @@ impl ObserverStage {
 
     /// Adds one used event to the posterior and to the kept evidence.
     fn apply(&mut self, ev: &Evidence) {
-        let Some((est, table)) = self.est.as_mut() else {
+        if !self.has_table {
             return;
-        };
-        est.update_event(
-            table,
+        }
+        self.obs.feed_estimator(
             ev.rms_deg,
             ev.peak_deg,
             ev.cruise_rms_deg,
@@ -206,7 +191,9 @@ impl EventStage for ObserverStage {
     }
 
     fn save(&self) -> Option<serde_json::Value> {
-        self.est.as_ref()?;
+        if !self.has_table {
+            return None;
+        }
         serde_json::to_value(Saved {
             evidence: self.evidence.iter().copied().collect(),
             evidence_dropped: self.evidence_dropped,
@@ -215,16 +202,15 @@ impl EventStage for ObserverStage {
     }
 
     fn restore(&mut self, saved: &serde_json::Value) -> anyhow::Result<Option<String>> {
-        let Some((_, table)) = self.est.as_ref() else {
+        if !self.has_table {
             return Ok(Some(
                 "the saved clearance posterior is not restored: no response table (vehicle.table)"
                     .into(),
             ));
-        };
+        }
         let saved: Saved = serde_json::from_value(saved.clone())
             .context("the state's saved posterior does not parse")?;
-        let fresh = Estimator::new(table, self.cfg.estimator.clone())?;
-        self.est.as_mut().expect("checked").0 = fresh;
+        self.obs.reset_estimator()?;
         self.evidence.clear();
         self.evidence_dropped = saved.evidence_dropped;
         for ev in &saved.evidence {
@@ -257,7 +243,7 @@ impl EventStage for ObserverStage {
     }
 
     fn estimate(&self) -> Option<Estimate> {
-        let (est, _) = self.est.as_ref()?;
+        let est = self.obs.estimator()?;
         let s = est.summary();
         let used = s.events_used > 0;
         Some(Estimate {
