@@ -1,31 +1,31 @@
 //! A mapped longitudinal acceleration too narrow for hard braking: the mapper reads it not at
 //! all (the detector then differentiates the speed) and says why; a wide enough one is read.
 
+mod signals_common;
+
 use shimmy::dbc::Database;
 use shimmy::signals::mapping::MappingConfig;
 use shimmy::signals::Mapper;
 use shimmy::wire::Frame;
 
 /// `NARROW` is Honda's KINEMATICS.LONG_ACCEL layout: 9 signed bits of -0.02 m/s², ±5.1 m/s².
-const DBC: &str = "\
-BO_ 256 STEER: 8 X
- SG_ ANGLE : 0|16@1- (0.1,0) [-3276.8|3276.7] \"deg\" Y
-BO_ 257 VEH: 8 X
- SG_ SPEED : 0|16@1+ (0.01,0) [0|655.35] \"km/h\" Y
- SG_ BRAKE : 16|1@1+ (1,0) [0|1] \"\" Y
+const DBC: &str = concat!(
+    crate::test_dbc_head!(),
+    "\
  SG_ NARROW : 24|9@1- (-0.02,0) [-20|20] \"m/s2\" Y
  SG_ WIDE : 40|10@1+ (0.03125,-16) [-16|15.97] \"m/s2\" Y
  SG_ WIDE_G : 56|8@1+ (0.01,-1.27) [-1.27|1.28] \"g\" Y
-";
+"
+);
 
 fn mapper(accel: &str, invert: bool) -> Mapper {
     let (db, _) = Database::parse(DBC);
     let unit = if accel == "WIDE_G" { "g" } else { "m/s^2" };
-    let toml = format!(
-        "[steer_angle]\nmessage = \"STEER\"\nsignal = \"ANGLE\"\nunit = \"deg\"\n\
-         [speed]\nmessage = \"VEH\"\nsignal = \"SPEED\"\nunit = \"km/h\"\n\
-         [brake_pressed]\nmessage = \"VEH\"\nsignal = \"BRAKE\"\n\
-         [accel]\nmessage = \"VEH\"\nsignal = \"{accel}\"\nunit = \"{unit}\"\ninvert = {invert}\n"
+    let toml = signals_common::test_mapping(
+        "",
+        &format!(
+            "[accel]\nmessage = \"VEH\"\nsignal = \"{accel}\"\nunit = \"{unit}\"\ninvert = {invert}\n"
+        ),
     );
     Mapper::new(&db, &MappingConfig::from_toml_str(&toml).unwrap()).unwrap()
 }

@@ -13,24 +13,18 @@ use shimmy::source::log::LogReader;
 use shimmy::source::CanSource;
 use shimmy::wire::Frame;
 
-const DBC: &str = "\
-BO_ 256 STEER: 8 X
- SG_ ANGLE : 0|16@1- (0.1,0) [-3276.8|3276.7] \"deg\" Y
-BO_ 257 VEH: 8 X
- SG_ SPEED : 0|16@1+ (0.01,0) [0|655.35] \"km/h\" Y
- SG_ BRAKE : 16|1@1+ (1,0) [0|1] \"\" Y
+const DBC: &str = concat!(
+    crate::test_dbc_head!(),
+    "\
 BO_ 258 EPS: 8 X
  SG_ TQ : 0|10@1+ (1,0) [0|1023] \"Unit_centiNewtoMeter\" Y
  SG_ TQ_SIGN : 10|1@1+ (1,0) [0|1] \"\" Y
-";
+"
+);
 
 fn mapper(torque: &str) -> Mapper {
     let (db, _) = Database::parse(DBC);
-    let text = format!(
-        "[steer_angle]\nmessage = \"STEER\"\nsignal = \"ANGLE\"\nunit = \"deg\"\n\
-         [speed]\nmessage = \"VEH\"\nsignal = \"SPEED\"\nunit = \"km/h\"\n\
-         [brake_pressed]\nmessage = \"VEH\"\nsignal = \"BRAKE\"\n{torque}"
-    );
+    let text = signals_common::test_mapping("", torque);
     Mapper::new(&db, &MappingConfig::from_toml_str(&text).unwrap()).unwrap()
 }
 

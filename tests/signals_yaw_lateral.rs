@@ -8,26 +8,16 @@ use shimmy::dbc::Database;
 use shimmy::signals::mapping::MappingConfig;
 use shimmy::signals::{Mapper, Validity};
 use shimmy::wire::Frame;
+use signals_common::test_mapping as mapping;
 
-const DBC: &str = "\
-BO_ 256 STEER: 8 X
- SG_ ANGLE : 0|16@1- (0.1,0) [-3276.8|3276.7] \"deg\" Y
-BO_ 257 VEH: 8 X
- SG_ SPEED : 0|16@1+ (0.01,0) [0|655.35] \"km/h\" Y
- SG_ BRAKE : 16|1@1+ (1,0) [0|1] \"\" Y
+const DBC: &str = concat!(
+    crate::test_dbc_head!(),
+    "\
  SG_ YAW : 24|14@1+ (0.01,0) [0|163.83] \"deg/s\" Y
  SG_ YAW_SIGN : 38|1@1+ (1,0) [0|1] \"\" Y
  SG_ AY : 40|8@1+ (0.01,-1.27) [-1.27|1.28] \"g\" Y
-";
-
-/// A mapping of the test DBC: `steer` extra lines under [steer_angle], `extra` tables after.
-fn mapping(steer: &str, extra: &str) -> String {
-    format!(
-        "[steer_angle]\nmessage = \"STEER\"\nsignal = \"ANGLE\"\nunit = \"deg\"\n{steer}\
-         [speed]\nmessage = \"VEH\"\nsignal = \"SPEED\"\nunit = \"km/h\"\n\
-         [brake_pressed]\nmessage = \"VEH\"\nsignal = \"BRAKE\"\n{extra}"
-    )
-}
+"
+);
 
 fn mapper(steer: &str, extra: &str) -> Mapper {
     let (db, _) = Database::parse(DBC);

@@ -106,25 +106,17 @@ impl<R: Read> Read for HashingReader<R> {
 fn open_hashed(
     path: &Path,
 ) -> anyhow::Result<(LogReader, Box<dyn FnOnce() -> anyhow::Result<String>>)> {
-    let mut file =
-        std::fs::File::open(path).with_context(|| format!("cannot open log {}", path.display()))?;
-    let mut head = [0u8; 8];
-    let n = file.read(&mut head).unwrap_or(0);
-    file.rewind()
-        .with_context(|| format!("cannot read log {}", path.display()))?;
-    if crate::wire::mf4::is_mdf4(&head[..n]) {
+    let state = Arc::new(Mutex::new((Sha256::new(), 0u64)));
+    let (src, hashed) = LogReader::open_with(path, |inner| HashingReader {
+        inner,
+        state: Arc::clone(&state),
+    })
+    .with_context(|| format!("cannot open log {}", path.display()))?;
+    if !hashed {
+        // MDF 4 is read by seeking: its bytes are hashed in a pass of their own.
         let sha = sha256_file(path)?;
-        let src = LogReader::from_seekable(file, path)
-            .with_context(|| format!("cannot open log {}", path.display()))?;
         return Ok((src, Box::new(move || Ok(sha))));
     }
-    let state = Arc::new(Mutex::new((Sha256::new(), 0u64)));
-    let reader = HashingReader {
-        inner: file,
-        state: Arc::clone(&state),
-    };
-    let src = LogReader::from_reader(reader, path)
-        .with_context(|| format!("cannot open log {}", path.display()))?;
     let path = path.to_path_buf();
     let finish = move || -> anyhow::Result<String> {
         let (mut h, read) = {

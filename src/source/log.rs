@@ -125,6 +125,16 @@ enum Step {
 impl LogReader {
     /// Open a log file, detecting its format.
     pub fn open(path: impl AsRef<Path>) -> io::Result<LogReader> {
+        Self::open_with(path, |file| file).map(|(reader, _)| reader)
+    }
+
+    /// As [`Self::open`], with the file of a format read as a stream (every format but MDF 4,
+    /// which is read by seeking) read through `wrap(file)`: a layer that sees every byte the
+    /// parser reads, such as a hash. Returns the reader and whether `wrap` was used.
+    pub fn open_with<R: Read + Send + 'static>(
+        path: impl AsRef<Path>,
+        wrap: impl FnOnce(File) -> R,
+    ) -> io::Result<(LogReader, bool)> {
         let path = path.as_ref();
         let mut file = File::open(path).map_err(|e| {
             io::Error::new(e.kind(), format!("cannot open {}: {e}", path.display()))
@@ -133,9 +143,9 @@ impl LogReader {
         let n = file.read(&mut head).unwrap_or(0);
         file.rewind()?;
         if mf4::is_mdf4(&head[..n]) {
-            return Self::from_seekable(file, path);
+            return Ok((Self::from_seekable(file, path)?, false));
         }
-        Self::from_reader(file, path)
+        Ok((Self::from_reader(wrap(file), path)?, true))
     }
 
     /// Read a log from a seekable reader (any format; MF4 needs one).

@@ -8,6 +8,32 @@ use shimmy::dbc::Database;
 use shimmy::signals::mapping::MappingConfig;
 use shimmy::wire::Frame;
 
+/// The first lines of the small test DBCs: a steering angle (0.1°, signed) in `STEER` and the
+/// speed (0.01 km/h) and brake bit in `VEH`; a test appends its own signals to `VEH` or its own
+/// messages: `concat!(test_dbc_head!(), " SG_ …\n")`.
+#[macro_export]
+macro_rules! test_dbc_head {
+    () => {
+        "\
+BO_ 256 STEER: 8 X
+ SG_ ANGLE : 0|16@1- (0.1,0) [-3276.8|3276.7] \"deg\" Y
+BO_ 257 VEH: 8 X
+ SG_ SPEED : 0|16@1+ (0.01,0) [0|655.35] \"km/h\" Y
+ SG_ BRAKE : 16|1@1+ (1,0) [0|1] \"\" Y
+"
+    };
+}
+
+/// A mapping of [`test_dbc_head!`]'s DBC: its angle, speed and brake, `steer` extra lines under
+/// `[steer_angle]`, then `extra` (the test's own tables).
+pub fn test_mapping(steer: &str, extra: &str) -> String {
+    format!(
+        "[steer_angle]\nmessage = \"STEER\"\nsignal = \"ANGLE\"\nunit = \"deg\"\n{steer}\
+         [speed]\nmessage = \"VEH\"\nsignal = \"SPEED\"\nunit = \"km/h\"\n\
+         [brake_pressed]\nmessage = \"VEH\"\nsignal = \"BRAKE\"\n{extra}"
+    )
+}
+
 pub fn repo(rel: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(rel)
 }
