@@ -6,8 +6,10 @@
 //! short frame) is null.
 //!
 //! Streaming with bounded memory: each message buffers at most [`BATCH_ROWS`] rows before they
-//! go to its open file, whose row group is bounded by [`super::write::ROW_GROUP_ROWS`]; memory
-//! grows with the number of messages, not with the log's length.
+//! go to its open file; the open files' row groups in progress hold at most
+//! [`ROW_GROUPS_BUDGET_BYTES`] together (past it the largest ends early; each ends at
+//! [`super::write::ROW_GROUP_ROWS`] rows anyway), and a file takes at most [`FILE_ROWS`] rows of
+//! its message (its footer metadata is kept until it closes).
 //!
 //! What it is not: DBC decoding ([`crate::dbc::Message::decode`] does it, as for `shimmy
 //! decode`), the monitor's tables ([`super::tables`]) or the naming rule ([`super`]).
@@ -25,6 +27,18 @@ use crate::wire::{Frame, FrameKind};
 
 /// Rows a message buffers before they are handed to its file (one record batch).
 pub const BATCH_ROWS: usize = 8_192;
+
+/// Most memory (bytes) the open files' row groups in progress may hold together: past it the
+/// largest ends early (a smaller row group). Without it each open file holds up to
+/// [`super::write::ROW_GROUP_ROWS`] rows of encoded pages, and a slow message takes hours of
+/// log to fill one, so the memory kept climbing with the log's length towards a bound set by
+/// the number of messages times the row group.
+pub const ROW_GROUPS_BUDGET_BYTES: usize = 8 << 20;
+
+/// Most rows of one message in one file: past it the message's next file starts (the next
+/// sequence number, same day). It bounds the footer metadata a file keeps in memory until it
+/// closes (one entry per row group and column), which otherwise grew with the log's length.
+pub const FILE_ROWS: usize = 1 << 20;
 
 /// Nanoseconds per day.
 pub const DAY_NS: i64 = 86_400 * 1_000_000_000;
@@ -110,6 +124,8 @@ struct MsgTable {
     open: Option<(i64, PartFile)>,
     /// Files opened so far for this message (the file name's sequence number).
     seq: u32,
+    /// Rows given to the open file so far (buffered ones included).
+    file_rows: usize,
 }
 
 impl MsgTable {
@@ -120,6 +136,7 @@ impl MsgTable {
             cols: msg.signals.iter().map(|_| Column::new()).collect(),
             open: None,
             seq: 0,
+            file_rows: 0,
         }
     }
 
@@ -150,7 +167,7 @@ impl MsgTable {
 /// The decoded-signal files of one log, under `<lake>/<device>/`, named
 /// `<tag>-<seq>.parquet` (`tag`: derived from the log's and the DBC's content, see [`super`],
 /// given at [`Finished::commit`] once the whole log has been read; `seq`: the message's files of
-/// this log, from 0, a new one whenever the date changes). Until then they are written under
+/// this log, from 0, a new one whenever the date changes or the file holds [`FILE_ROWS`] rows). Until then they are written under
 /// hidden temporary names made from `tmp_key`.
 pub struct SignalFiles<'db> {
     db: &'db Database,
@@ -161,7 +178,25 @@ pub struct SignalFiles<'db> {
     vals: Vec<f64>,
     seen: Vec<bool>,
     closed: Vec<Closed>,
+    limits: Limits,
     pub counts: SignalCounts,
+}
+
+/// The memory bounds of [`SignalFiles`]: [`FILE_ROWS`] and [`ROW_GROUPS_BUDGET_BYTES`] unless
+/// set otherwise ([`SignalFiles::with_limits`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Limits {
+    pub file_rows: usize,
+    pub row_groups_bytes: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Limits {
+        Limits {
+            file_rows: FILE_ROWS,
+            row_groups_bytes: ROW_GROUPS_BUDGET_BYTES,
+        }
+    }
 }
 
 impl<'db> SignalFiles<'db> {
@@ -180,8 +215,16 @@ impl<'db> SignalFiles<'db> {
             vals: vec![0.0; most],
             seen: vec![false; most],
             closed: Vec::new(),
+            limits: Limits::default(),
             counts: SignalCounts::default(),
         }
+    }
+
+    /// The same, with other memory bounds (a file's rows, the row groups' bytes); the lake's
+    /// layout depends on them, so the exporter keeps the defaults.
+    pub fn with_limits(mut self, limits: Limits) -> SignalFiles<'db> {
+        self.limits = limits;
+        self
     }
 
     /// Decodes one frame into its message's rows (a frame of no DBC message, or one refused,
@@ -216,7 +259,9 @@ impl<'db> SignalFiles<'db> {
         }
         let day = frame.t_ns.div_euclid(DAY_NS);
         let table = self.msgs[mi].get_or_insert_with(|| MsgTable::new(msg));
-        if table.open.as_ref().map(|(d, _)| *d) != Some(day) {
+        if table.open.as_ref().map(|(d, _)| *d) != Some(day)
+            || table.file_rows >= self.limits.file_rows
+        {
             table.flush()?;
             if let Some((_, f)) = table.open.take() {
                 self.closed.push(f.close()?);
@@ -230,12 +275,14 @@ impl<'db> SignalFiles<'db> {
                 .join(format!("{d:02}"))
                 .join(format!("{}-{:03}.parquet", self.tmp_key, table.seq));
             table.seq += 1;
+            table.file_rows = 0;
             table.open = Some((
                 day,
                 PartFile::create_with(dest, Arc::clone(&table.schema), signal_properties())?,
             ));
         }
         table.t.push(frame.t_ns.div_euclid(1000));
+        table.file_rows += 1;
         for (c, (&v, &s)) in table.cols.iter_mut().zip(vals.iter().zip(seen.iter())) {
             // A null's slot holds 0 (Arrow leaves it unspecified; a fixed value keeps reruns'
             // bytes equal).
@@ -246,8 +293,38 @@ impl<'db> SignalFiles<'db> {
         self.counts.rows += 1;
         if table.t.len() >= BATCH_ROWS {
             table.flush()?;
+            self.keep_budget()?;
         }
         Ok(())
+    }
+
+    /// Ends the largest row groups in progress until together they hold at most
+    /// [`ROW_GROUPS_BUDGET_BYTES`]. Depends on the log's content only, so a rerun cuts the
+    /// same row groups.
+    fn keep_budget(&mut self) -> anyhow::Result<()> {
+        let budget = self.limits.row_groups_bytes;
+        loop {
+            let mut total = 0;
+            let mut largest: Option<(usize, usize)> = None;
+            for (i, t) in self.msgs.iter().enumerate() {
+                if let Some((_, f)) = t.as_ref().and_then(|t| t.open.as_ref()) {
+                    let b = f.in_progress_bytes();
+                    total += b;
+                    if largest.is_none_or(|(_, lb)| b > lb) {
+                        largest = Some((i, b));
+                    }
+                }
+            }
+            let Some((i, b)) = largest else {
+                return Ok(());
+            };
+            if total <= budget || b == 0 {
+                return Ok(());
+            }
+            if let Some((_, f)) = self.msgs[i].as_mut().and_then(|t| t.open.as_mut()) {
+                f.end_row_group()?;
+            }
+        }
     }
 
     /// Finishes every file (still under temporary names; [`Finished::commit`] makes them
@@ -296,7 +373,77 @@ impl Finished {
 
 #[cfg(test)]
 mod tests {
-    use super::civil_date;
+    use super::*;
+    use parquet::file::reader::{FileReader, SerializedFileReader};
+
+    /// Two messages, 20,000 frames each, interleaved, through `SignalFiles` with `limits`;
+    /// returns each committed file's row-group row counts, by message name.
+    fn export(limits: Limits) -> Vec<(String, Vec<i64>)> {
+        let (db, _) = Database::parse(
+            "BO_ 256 A: 8 X\n SG_ X : 0|16@1+ (1,0) [0|65535] \"\" Y\n\
+             BO_ 257 B: 8 X\n SG_ Y : 0|16@1+ (1,0) [0|65535] \"\" Y\n SG_ Z : 16|16@1+ (1,0) [0|65535] \"\" Y\n",
+        );
+        let dir = tempfile::tempdir().unwrap();
+        let mut sig = SignalFiles::new(&db, dir.path().join("dev"), "k".into()).with_limits(limits);
+        for k in 0..40_000u32 {
+            let mut data = [0u8; 8];
+            data[..4].copy_from_slice(&k.to_le_bytes());
+            let f = Frame::classic(i64::from(k) * 1_000_000, 256 + (k % 2), false, &data).unwrap();
+            sig.push(&f).unwrap();
+        }
+        let files = sig.finish().unwrap().commit("tag").unwrap();
+        let mut out = Vec::new();
+        for p in files {
+            let r = SerializedFileReader::new(std::fs::File::open(&p).unwrap()).unwrap();
+            let rows = r
+                .metadata()
+                .row_groups()
+                .iter()
+                .map(|g| g.num_rows())
+                .collect();
+            let msg = p.components().rev().nth(4).unwrap();
+            out.push((msg.as_os_str().to_string_lossy().into_owned(), rows));
+        }
+        out.sort();
+        out
+    }
+
+    #[test]
+    fn a_message_past_its_file_rows_continues_in_its_next_file() {
+        let files = export(Limits {
+            file_rows: 7_000,
+            ..Limits::default()
+        });
+        // 20,000 rows per message: files of 7,000, 7,000 and 6,000 rows.
+        for msg in ["A", "B"] {
+            let mut rows: Vec<i64> = files
+                .iter()
+                .filter(|(m, _)| m == msg)
+                .map(|(_, g)| g.iter().sum())
+                .collect();
+            rows.sort();
+            assert_eq!(rows, [6_000, 7_000, 7_000], "{msg}: {files:?}");
+        }
+    }
+
+    #[test]
+    fn the_row_group_budget_ends_row_groups_early_and_loses_no_row() {
+        let whole = export(Limits::default());
+        assert!(whole.iter().all(|(_, g)| g.len() == 1), "{whole:?}");
+        // No budget: every batch handed to a file ends its row group at once.
+        let cut = export(Limits {
+            row_groups_bytes: 0,
+            ..Limits::default()
+        });
+        for (msg, groups) in &cut {
+            assert!(groups.len() >= 3, "{msg}: {groups:?}");
+            assert!(
+                groups.iter().all(|&n| n as usize <= BATCH_ROWS),
+                "{msg}: {groups:?}"
+            );
+            assert_eq!(groups.iter().sum::<i64>(), 20_000, "{msg}");
+        }
+    }
 
     #[test]
     fn civil_dates_of_day_numbers() {

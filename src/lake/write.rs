@@ -106,6 +106,19 @@ impl PartFile {
             .with_context(|| format!("writing {}", self.tmp.display()))
     }
 
+    /// Memory (bytes) the row group in progress holds: its encoded pages and the page being
+    /// encoded.
+    pub fn in_progress_bytes(&self) -> usize {
+        self.writer.as_ref().map_or(0, |w| w.memory_size())
+    }
+
+    /// Ends the row group in progress (written to the file; a no-op when it is empty).
+    pub fn end_row_group(&mut self) -> anyhow::Result<()> {
+        let w = self.writer.as_mut().expect("open until closed");
+        w.flush()
+            .with_context(|| format!("writing {}", self.tmp.display()))
+    }
+
     /// Finishes the file (footer, sync) without making it visible yet.
     pub fn close(mut self) -> anyhow::Result<Closed> {
         let w = self.writer.take().expect("open until closed");
