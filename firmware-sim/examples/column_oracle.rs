@@ -7,7 +7,9 @@
 //! * the rim angle with the MODEL.md §15 column on, the hands drawn per event from the shipped
 //!   prior (off / light / firm at their docs/COLUMN.md range midpoints, with their
 //!   probabilities),
-//! * the torsion-bar torque T_c of §15 under the same hands.
+//! * the torsion-bar torque T_c of §15 under the same hands,
+//! * that torque as the Toyota profile's bus carries it: 50 Hz, 0.01 N·m steps, 0.02 N·m noise,
+//!   and so a 3–20 Hz band.
 //!
 //! Features: ln of the RMS and ln of the peak of the 3–25 Hz, 4th-order zero-phase band-passed
 //! signal over the braking window (MODEL.md §11: the estimator's braking features). For each
@@ -28,11 +30,36 @@ use shimmy::model::{run, JointMode, Scenario, VehicleParams};
 use shimmy::observer::simulate::{HandsPrior, HandsState};
 
 /// The signals measured, in output order.
-const SIGNALS: [&str; 3] = [
+const SIGNALS: [&str; 4] = [
     "5-DOF pinion angle",
     "rim angle, column + hands",
     "torsion-bar torque, column + hands",
+    "torque as the RAV4 sends it (50 Hz, 0.01 N·m, noise 0.02 N·m; 3–20 Hz band)",
 ];
+
+/// The Toyota profile's torque sensor (config/vehicles/toyota_rav4: 50 Hz, 0.01 N·m per count
+/// assumed, firmware-sim's default torque noise 0.02 N·m): `x` (at `fs_hz`) sampled at 50 Hz
+/// (every k-th value, no anti-alias filter assumed), noise added, quantised.
+fn rav4_torque(x: &[f64], fs_hz: f64, seed: u64) -> (Vec<f64>, usize) {
+    let k = (fs_hz / 50.0).round().max(1.0) as usize;
+    // xorshift64* and Box–Muller: a fixed, seeded noise without a dependency.
+    let mut st = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+    let mut uniform = || {
+        st ^= st >> 12;
+        st ^= st << 25;
+        st ^= st >> 27;
+        ((st.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    };
+    let out = x
+        .iter()
+        .step_by(k)
+        .map(|&v| {
+            let g = (-2.0 * uniform().ln()).sqrt() * (std::f64::consts::TAU * uniform()).cos();
+            ((v + 0.02 * g) / 0.01).round() * 0.01
+        })
+        .collect();
+    (out, k)
+}
 
 /// The braking features, in output order.
 const FEATURES: [&str; 2] = ["ln RMS", "ln peak"];
@@ -77,7 +104,7 @@ fn main() -> anyhow::Result<()> {
     }
     // One run: [ln rms, ln peak] of the pinion angle (5-DOF) or of the rim and the torque.
     type Job = (f64, f64, f64, Option<HandsState>, u64);
-    let one = |&(c_mm, v_kmh, a_g, s, seed): &Job| -> anyhow::Result<[f64; 4]> {
+    let one = |&(c_mm, v_kmh, a_g, s, seed): &Job| -> anyhow::Result<[f64; 6]> {
         let mut p = VehicleParams::default();
         if let Some(s) = s {
             p.column.enabled = true;
@@ -100,15 +127,22 @@ fn main() -> anyhow::Result<()> {
             [rms.ln(), peak_abs(x).ln()]
         };
         let sw = feats(&bp.filtfilt(&tr.column(|o| o.delta_sw_rad)));
-        let tc = if s.is_some() {
-            feats(&bp.filtfilt(&tr.column(|o| o.column_torque_nm)))
+        let (tc, t50) = if s.is_some() {
+            let tq = tr.column(|o| o.column_torque_nm);
+            let (x50, k) = rav4_torque(&tq, tr.fs_hz, seed ^ (c_mm * 1e6) as u64 ^ v_kmh as u64);
+            let bp50 = Bandpass::new(50.0, 3.0, 20.0, 4)?;
+            let y = bp50.filtfilt(&x50);
+            let w50 = (w.start / k).min(y.len())..(w.end / k).min(y.len());
+            let y = &y[w50];
+            let rms = (y.iter().map(|v| v * v).sum::<f64>() / y.len().max(1) as f64).sqrt();
+            (feats(&bp.filtfilt(&tq)), [rms.ln(), peak_abs(y).ln()])
         } else {
-            [f64::NAN; 2]
+            ([f64::NAN; 2], [f64::NAN; 2])
         };
-        Ok([sw[0], sw[1], tc[0], tc[1]])
+        Ok([sw[0], sw[1], tc[0], tc[1], t50[0], t50[1]])
     };
     // Two threads (the machine is shared).
-    let results: Vec<anyhow::Result<[f64; 4]>> = std::thread::scope(|sc| {
+    let results: Vec<anyhow::Result<[f64; 6]>> = std::thread::scope(|sc| {
         let (a, b) = jobs.split_at(jobs.len() / 2);
         let ha = sc.spawn(|| a.iter().map(one).collect::<Vec<_>>());
         let hb = sc.spawn(|| b.iter().map(one).collect::<Vec<_>>());
@@ -116,7 +150,7 @@ fn main() -> anyhow::Result<()> {
         r.extend(hb.join().expect("thread"));
         r
     });
-    let results: Vec<[f64; 4]> = results.into_iter().collect::<anyhow::Result<_>>()?;
+    let results: Vec<[f64; 6]> = results.into_iter().collect::<anyhow::Result<_>>()?;
     let per_cell = (1 + states.len()) * n_seeds as usize;
     let stat = |xs: &[f64]| {
         let m = xs.iter().sum::<f64>() / xs.len() as f64;
@@ -127,7 +161,7 @@ fn main() -> anyhow::Result<()> {
     // event type k): over seeds for the 5-DOF, over the hands mixture otherwise.
     let moments = |ci: usize, k: usize, sig: usize, f: usize| -> (f64, f64) {
         let base = (ci * speeds_kmh.len() * decels_g.len() + k) * per_cell;
-        let pick = |r: &[f64; 4]| if sig == 2 { r[2 + f] } else { r[f] };
+        let pick = |r: &[f64; 6]| if sig >= 2 { r[2 * (sig - 1) + f] } else { r[f] };
         let seeds = n_seeds as usize;
         if sig == 0 {
             let xs: Vec<f64> = results[base..base + seeds].iter().map(pick).collect();

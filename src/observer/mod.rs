@@ -245,7 +245,7 @@ impl Observer {
     }
 
     /// As [`Self::new`], but the used events do not reach the estimator by themselves: the
-    /// caller adds them with [`Self::feed_estimator`], placed on its own odometer, and can
+    /// caller adds them through [`Self::estimator_mut`], placed on its own odometer, and can
     /// start the posterior afresh with [`Self::reset_estimator`] (a daemon that restores its
     /// posterior from saved evidence). [`Self::report`] then reports what the caller fed.
     pub fn new_caller_fed(
@@ -257,30 +257,10 @@ impl Observer {
         Ok(obs)
     }
 
-    /// Adds one used event's features (MODEL.md §11: band-passed steering-wheel RMS and peak,
-    /// the pre-brake cruise RMS, in degrees) at odometer `odometer_m` (its brake onset) to the
-    /// estimator. No-op without a response table.
-    #[allow(clippy::too_many_arguments)]
-    pub fn feed_estimator(
-        &mut self,
-        rms_deg: f64,
-        peak_deg: f64,
-        cruise_rms_deg: Option<f64>,
-        v0_kmh: f64,
-        decel_g: f64,
-        odometer_m: f64,
-    ) {
-        if let (Some(est), Some(t)) = (self.estimator.as_mut(), self.table.as_ref()) {
-            est.update_event(
-                t,
-                rms_deg,
-                peak_deg,
-                cruise_rms_deg,
-                v0_kmh,
-                decel_g,
-                odometer_m,
-            );
-        }
+    /// The estimator with the table it predicts from, for a caller that feeds it
+    /// ([`Self::new_caller_fed`]); `None` without a response table.
+    pub fn estimator_mut(&mut self) -> Option<(&mut Estimator, &ResponseTable)> {
+        Some((self.estimator.as_mut()?, self.table.as_ref()?))
     }
 
     /// Replaces the estimator with a fresh one (no evidence). No-op without a response table.

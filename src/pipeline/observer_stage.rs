@@ -121,10 +121,11 @@ impl ObserverStage {
 
     /// Adds one used event to the posterior and to the kept evidence.
     fn apply(&mut self, ev: &Evidence) {
-        if !self.has_table {
+        let Some((est, table)) = self.obs.estimator_mut() else {
             return;
-        }
-        self.obs.feed_estimator(
+        };
+        est.update_event(
+            table,
             ev.rms_deg,
             ev.peak_deg,
             ev.cruise_rms_deg,
