@@ -167,8 +167,8 @@ impl MsgTable {
 /// The decoded-signal files of one log, under `<lake>/<device>/`, named
 /// `<tag>-<seq>.parquet` (`tag`: derived from the log's and the DBC's content, see [`super`],
 /// given at [`Finished::commit`] once the whole log has been read; `seq`: the message's files of
-/// this log, from 0, a new one whenever the date changes or the file holds [`FILE_ROWS`] rows). Until then they are written under
-/// hidden temporary names made from `tmp_key`.
+/// this log, from 0, a new one whenever the date changes or the file holds [`FILE_ROWS`] rows).
+/// Until then they are written under hidden temporary names made from `tmp_key`.
 pub struct SignalFiles<'db> {
     db: &'db Database,
     root: PathBuf,
@@ -381,7 +381,8 @@ mod tests {
     fn export(limits: Limits) -> Vec<(String, Vec<i64>)> {
         let (db, _) = Database::parse(
             "BO_ 256 A: 8 X\n SG_ X : 0|16@1+ (1,0) [0|65535] \"\" Y\n\
-             BO_ 257 B: 8 X\n SG_ Y : 0|16@1+ (1,0) [0|65535] \"\" Y\n SG_ Z : 16|16@1+ (1,0) [0|65535] \"\" Y\n",
+             BO_ 257 B: 8 X\n SG_ Y : 0|16@1+ (1,0) [0|65535] \"\" Y\n\
+             \x20SG_ Z : 16|16@1+ (1,0) [0|65535] \"\" Y\n",
         );
         let dir = tempfile::tempdir().unwrap();
         let mut sig = SignalFiles::new(&db, dir.path().join("dev"), "k".into()).with_limits(limits);
