@@ -96,13 +96,3 @@ impl std::fmt::Display for Counters {
         Ok(())
     }
 }
-
-/// Adds two sources' counters.
-pub fn add(a: &mut SourceStats, b: &SourceStats) {
-    a.frames += b.frames;
-    a.malformed += b.malformed;
-    a.skipped += b.skipped;
-    a.error_frames += b.error_frames;
-    a.backwards_timestamps += b.backwards_timestamps;
-    a.dropped = a.dropped.saturating_add(b.dropped);
-}

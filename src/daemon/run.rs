@@ -31,7 +31,7 @@ use anyhow::{bail, Context};
 use serde_json::json;
 
 use super::config::Config;
-use super::counters::{self, Counters};
+use super::counters::Counters;
 use super::state::{self, State};
 use crate::dbc::Database;
 use crate::journal::{Journal, Setup, Tolerance};
@@ -108,14 +108,14 @@ impl Input {
             Input::Replay { cur, done, .. } => {
                 let mut s = done.clone();
                 if let Some(r) = cur {
-                    counters::add(&mut s, &r.stats());
+                    s.add(&r.stats());
                 }
                 s
             }
             Input::Live { stats, .. } => {
                 let mut s = SourceStats::default();
                 for st in stats {
-                    counters::add(&mut s, &st.lock().expect("stats lock"));
+                    s.add(&st.lock().expect("stats lock"));
                 }
                 s
             }
@@ -168,7 +168,7 @@ impl Input {
                         return Ok(Feed::Frame(f));
                     }
                     None => {
-                        counters::add(done, &r.stats());
+                        done.add(&r.stats());
                         *cur = None;
                     }
                 }

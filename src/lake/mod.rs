@@ -317,7 +317,7 @@ impl Exporter {
             }
             Ok(())
         })();
-        self.pipe.feeder.stats.add_source(&src.stats());
+        self.pipe.feeder.stats.log.add(&src.stats());
         let skips = src.take_skips();
         drop(src);
         let events = rows.finished.len();

@@ -47,18 +47,6 @@ pub struct RunStats {
     pub log: SourceStats,
 }
 
-impl RunStats {
-    /// Adds a log reader's counters.
-    pub fn add_source(&mut self, st: &SourceStats) {
-        self.log.frames += st.frames;
-        self.log.malformed += st.malformed;
-        self.log.skipped += st.skipped;
-        self.log.error_frames += st.error_frames;
-        self.log.backwards_timestamps += st.backwards_timestamps;
-        self.log.dropped = self.log.dropped.saturating_add(st.dropped);
-    }
-}
-
 /// Turns mapped frames into detector samples.
 pub struct Feeder {
     mapper: Mapper,
@@ -97,7 +85,7 @@ impl Feeder {
                 sink(&s);
             }
         }
-        self.stats.add_source(&src.stats());
+        self.stats.log.add(&src.stats());
         Ok(())
     }
 

@@ -44,6 +44,19 @@ pub struct SourceStats {
     pub dropped: u64,
 }
 
+impl SourceStats {
+    /// Adds another source's counters (several logs, or a reader that restarted). A drop count
+    /// is what a log states, so it saturates instead of overflowing.
+    pub fn add(&mut self, b: &SourceStats) {
+        self.frames += b.frames;
+        self.malformed += b.malformed;
+        self.skipped += b.skipped;
+        self.error_frames += b.error_frames;
+        self.backwards_timestamps += b.backwards_timestamps;
+        self.dropped = self.dropped.saturating_add(b.dropped);
+    }
+}
+
 /// Anything that yields CAN frames.
 pub trait CanSource {
     /// The next frame; `Ok(None)` at the end of a finite source. Malformed input is not an
