@@ -50,9 +50,9 @@ pub struct Args {
     /// Signal mapping (TOML, e.g. config/vehicles/*/mapping.toml) to print the monitor's quantities instead
     /// of raw signals: one record per frame of a mapped message, with steering-wheel angle
     /// (deg), speed (km/h), brake pressure (bar), brake pressed, longitudinal acceleration
-    /// (m/s^2), the driver's steering torque (N·m), each with its validity (valid, no_data, timed_out, not_mapped; a value is
-    /// printed only while valid), and why the frame was rejected if it was (checksum, counter,
-    /// short). The summary lists, per message, frames, accepted, checksum and counter errors,
+    /// (m/s^2), the driver's steering torque (N·m), each with its validity (valid, no_data,
+    /// timed_out, not_mapped; a value is printed only while valid), and why the frame was
+    /// rejected if it was (checksum, counter, short). The summary lists, per message, frames, accepted, checksum and counter errors,
     /// counter gaps, short frames and timeouts.
     #[arg(long, value_name = "FILE")]
     pub mapping: Option<PathBuf>,
@@ -116,15 +116,6 @@ pub struct Summary {
 }
 
 impl Summary {
-    fn add_source(&mut self, s: &SourceStats) {
-        self.source.frames += s.frames;
-        self.source.malformed += s.malformed;
-        self.source.skipped += s.skipped;
-        self.source.error_frames += s.error_frames;
-        self.source.backwards_timestamps += s.backwards_timestamps;
-        self.source.dropped = self.source.dropped.saturating_add(s.dropped);
-    }
-
     /// The human summary printed at the end.
     pub fn report(&self) -> String {
         let mut s = format!(
@@ -253,7 +244,7 @@ pub fn decode_source<W: Write>(
         summary.frames += 1;
         decode_frame(db, &names, &frame, out, opts, summary)?;
     }
-    summary.add_source(&source.stats());
+    summary.source.add(&source.stats());
     summary.skips.extend(source.take_skips());
     Ok(())
 }
@@ -550,21 +541,13 @@ pub fn decode_mapped<W: Write>(
         };
         write_mapped(out, &frame, &names[u.message], &snap, rejected, format)?;
     }
-    summary.add(&source.stats());
+    summary.source.add(&source.stats());
     summary.skips.extend(source.take_skips());
     Ok(())
 }
 
-impl MappedSummary {
-    fn add(&mut self, s: &SourceStats) {
-        self.source.frames += s.frames;
-        self.source.malformed += s.malformed;
-        self.source.skipped += s.skipped;
-        self.source.error_frames += s.error_frames;
-        self.source.backwards_timestamps += s.backwards_timestamps;
-        self.source.dropped = self.source.dropped.saturating_add(s.dropped);
-    }
-}
+/// A mapped quantity as printed: JSON key, validity key, value in edge units, validity.
+type Quantity = (&'static str, &'static str, Option<f64>, Validity);
 
 fn write_mapped<W: Write>(
     out: &mut W,
@@ -580,8 +563,6 @@ fn write_mapped<W: Write>(
     let steer = s.steer_angle_rad.valid().map(|v| edge(v.to_degrees()));
     let speed = s.speed_mps.valid().map(|v| edge(v * 3.6));
     let pressure = s.brake_pressure_pa.valid().map(|v| edge(v * 1e-5));
-    let accel = s.accel_mps2.valid().map(edge);
-    let torque = s.steer_torque_nm.valid().map(edge);
     let nums = [
         (
             "steer_angle_deg",
@@ -597,44 +578,56 @@ fn write_mapped<W: Write>(
             s.brake_pressure_pa.validity,
         ),
     ];
+    // The quantities after `brake_pressed`, in the same shape.
+    let more = [
+        (
+            "accel_mps2",
+            "accel",
+            s.accel_mps2.valid().map(edge),
+            s.accel_mps2.validity,
+        ),
+        (
+            "steer_torque_nm",
+            "steer_torque",
+            s.steer_torque_nm.valid().map(edge),
+            s.steer_torque_nm.validity,
+        ),
+    ];
     let pressed = s.brake_pressed.valid();
     match format {
         Format::Jsonl => {
             out.write_all(b"{\"t\": ")?;
             write_time(out, frame.t_ns)?;
             write!(out, ", \"msg\": {name}")?;
-            for (key, _, v, _) in nums {
-                write!(out, ", \"{key}\": ")?;
-                match v {
-                    Some(v) => write_num(out, v, format)?,
-                    None => out.write_all(b"null")?,
+            let values = |out: &mut W, quantities: &[Quantity]| -> io::Result<()> {
+                for &(key, _, v, _) in quantities {
+                    write!(out, ", \"{key}\": ")?;
+                    match v {
+                        Some(v) => write_num(out, v, format)?,
+                        None => out.write_all(b"null")?,
+                    }
                 }
-            }
+                Ok(())
+            };
+            values(out, &nums)?;
             match pressed {
                 Some(p) => write!(out, ", \"brake_pressed\": {p}")?,
                 None => out.write_all(b", \"brake_pressed\": null")?,
             }
-            out.write_all(b", \"accel_mps2\": ")?;
-            match accel {
-                Some(v) => write_num(out, v, format)?,
-                None => out.write_all(b"null")?,
-            }
-            out.write_all(b", \"steer_torque_nm\": ")?;
-            match torque {
-                Some(v) => write_num(out, v, format)?,
-                None => out.write_all(b"null")?,
-            }
+            values(out, &more)?;
             out.write_all(b", \"validity\": {")?;
             for (_, quantity, _, v) in nums {
                 write!(out, "\"{quantity}\": \"{}\", ", validity_str(v))?;
             }
             write!(
                 out,
-                "\"brake_pressed\": \"{}\", \"accel\": \"{}\", \"steer_torque\": \"{}\"}}",
-                validity_str(s.brake_pressed.validity),
-                validity_str(s.accel_mps2.validity),
-                validity_str(s.steer_torque_nm.validity)
+                "\"brake_pressed\": \"{}\"",
+                validity_str(s.brake_pressed.validity)
             )?;
+            for (_, quantity, _, v) in more {
+                write!(out, ", \"{quantity}\": \"{}\"", validity_str(v))?;
+            }
+            out.write_all(b"}")?;
             if let Some(r) = rejected {
                 // Reject texts hold no characters that need JSON escaping.
                 write!(out, ", \"rejected\": \"{r}\"")?;
@@ -644,27 +637,24 @@ fn write_mapped<W: Write>(
         Format::Csv => {
             write_time(out, frame.t_ns)?;
             write!(out, ",{name}")?;
-            for (_, _, v, validity) in nums {
-                out.write_all(b",")?;
-                if let Some(v) = v {
-                    write_num(out, v, format)?;
+            let columns = |out: &mut W, quantities: &[Quantity]| -> io::Result<()> {
+                for &(_, _, v, validity) in quantities {
+                    out.write_all(b",")?;
+                    if let Some(v) = v {
+                        write_num(out, v, format)?;
+                    }
+                    write!(out, ",{}", validity_str(validity))?;
                 }
-                write!(out, ",{}", validity_str(validity))?;
-            }
+                Ok(())
+            };
+            columns(out, &nums)?;
             match pressed {
                 Some(p) => write!(out, ",{}", p as u8)?,
                 None => out.write_all(b",")?,
             }
             write!(out, ",{}", validity_str(s.brake_pressed.validity))?;
+            columns(out, &more)?;
             out.write_all(b",")?;
-            if let Some(v) = accel {
-                write_num(out, v, format)?;
-            }
-            write!(out, ",{},", validity_str(s.accel_mps2.validity))?;
-            if let Some(v) = torque {
-                write_num(out, v, format)?;
-            }
-            write!(out, ",{},", validity_str(s.steer_torque_nm.validity))?;
             if let Some(r) = rejected {
                 // Reject texts hold no commas or quotes.
                 write!(out, "{r}")?;
