@@ -230,6 +230,7 @@ def _empty_events():
             ("model_version", pa.string()),
             ("table_sha256", pa.string()),
             ("dbc_sha256", pa.string()),
+            ("torque_table_sha256", pa.string()),
             ("vehicle", pa.string()),
             ("date", pa.string()),
         ]

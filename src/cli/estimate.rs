@@ -92,6 +92,16 @@ pub struct Args {
     #[arg(long, value_name = "FILE")]
     pub table: Option<PathBuf>,
 
+    /// Response table of the EPS torsion-bar torque (`shimmy calibrate --signal torque`);
+    /// default: the profile's `torque_table`, used when the mapping maps a steering torque.
+    /// Where the log carries a live torque the estimate comes from it, else from the angle.
+    #[arg(long, value_name = "FILE", conflicts_with = "angle_only")]
+    pub torque_table: Option<PathBuf>,
+
+    /// Estimate from the steering angle alone, even where a torque table and a torque exist.
+    #[arg(long)]
+    pub angle_only: bool,
+
     /// The monitor's settings (TOML, as config/observer.toml: events, features, estimator,
     /// alerts; every key in docs/CONFIG.md); default: built-in defaults.
     #[arg(long, value_name = "FILE")]
@@ -166,7 +176,7 @@ impl std::ops::Deref for Estimation {
 pub fn estimate_files(
     mapping_path: &Path,
     dbc: Option<&Path>,
-    table: Option<ResponseTable>,
+    tables: impl Into<crate::pipeline::Tables>,
     cfg: ObserverConfig,
     logs: &[PathBuf],
 ) -> anyhow::Result<(Estimation, RunStats)> {
@@ -174,7 +184,7 @@ pub fn estimate_files(
         mut feeder,
         mut monitor,
         ..
-    } = Offline::open(mapping_path, dbc, table, cfg, "shimmy estimate")?;
+    } = Offline::open(mapping_path, dbc, tables, cfg, "shimmy estimate")?;
     for log in logs {
         let mut src =
             LogReader::open(log).with_context(|| format!("cannot open log {}", log.display()))?;
@@ -251,6 +261,32 @@ pub fn evaluate(args: &Args) -> anyhow::Result<(Option<Profile>, Estimation, Run
         }
         (None, None) => None,
     };
+    let torque = match (&args.torque_table, &profile) {
+        _ if args.angle_only => None,
+        (Some(p), _) => {
+            let t = ResponseTable::load(p)?;
+            let ctx = || format!("torque table {}", p.display());
+            match (&args.vehicle, &profile) {
+                (None, Some(prof)) => prof.check_torque_table(&t).with_context(ctx)?,
+                (v, _) => {
+                    let mut vehicle = load_vehicle(v.as_deref())?;
+                    vehicle.column.enabled = true;
+                    if t.sensor.signal != crate::observer::features::SteerSignal::TorqueNm {
+                        anyhow::bail!("{}: a table of the steering angle, not the torque", ctx());
+                    }
+                    t.check_vehicle(&vehicle_hash(&vehicle)?)
+                        .with_context(ctx)?;
+                }
+            }
+            Some(t)
+        }
+        (None, Some(prof)) => prof.load_torque_table()?,
+        (None, None) => None,
+    };
+    let tables = crate::pipeline::Tables {
+        angle: table,
+        torque,
+    };
     let (mapping_path, dbc) = match &profile {
         Some(p) => (
             p.mapping_path.clone(),
@@ -261,7 +297,7 @@ pub fn evaluate(args: &Args) -> anyhow::Result<(Option<Profile>, Estimation, Run
             args.dbc.clone(),
         ),
     };
-    let (report, stats) = estimate_files(&mapping_path, dbc.as_deref(), table, cfg, &args.logs)?;
+    let (report, stats) = estimate_files(&mapping_path, dbc.as_deref(), tables, cfg, &args.logs)?;
     Ok((profile, report, stats))
 }
 

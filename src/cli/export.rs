@@ -135,18 +135,27 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
             None
         }
     };
+    let torque = profile.load_torque_table()?;
+    let torque_table_sha256 = match (&torque, &profile.torque_table_path) {
+        (Some(_), Some(p)) => Some(sha256_file(p)?),
+        _ => None,
+    };
     let settings_json = serde_json::to_vec(&cfg).context("serialising the monitor's settings")?;
     let inputs = Inputs {
         vehicle: args.vehicle.clone(),
         dbc_sha256: sha256_file(&profile.dbc_path)?,
         table_sha256,
+        torque_table_sha256,
         mapping_sha256: sha256_file(&profile.mapping_path)?,
         settings_sha256: sha256_bytes(&settings_json),
     };
     let pipe = Offline::open(
         &profile.mapping_path,
         Some(&profile.dbc_path),
-        table,
+        crate::pipeline::Tables {
+            angle: table,
+            torque,
+        },
         cfg,
         TOOL,
     )?;

@@ -133,6 +133,11 @@ pub struct VehicleSection {
     /// made (the shimmy-amplitude alert still works).
     #[serde(default)]
     pub table: Option<PathBuf>,
+    /// The response table of the EPS torsion-bar torque (`shimmy calibrate --signal torque`);
+    /// default: the profile's `torque_table` when its mapping maps the torque. Where the bus
+    /// carries a live torque the estimate comes from it, else from the angle table.
+    #[serde(default)]
+    pub torque_table: Option<PathBuf>,
     /// Odometer at first start when no state exists yet (km).
     #[serde(default)]
     pub initial_odometer_km: f64,
@@ -357,6 +362,7 @@ impl Config {
             cfg.input.dbc = None;
             cfg.input.mapping = None;
             cfg.vehicle.table = None;
+            cfg.vehicle.torque_table = None;
         }
         cfg.apply_profile(base)?;
         cfg.validate_daemon()?;
@@ -446,6 +452,9 @@ impl Config {
             // A profile whose table is not built yet still finds events; the daemon says so.
             self.vehicle.table = p.table_path.clone().filter(|t| t.is_file());
         }
+        if self.vehicle.torque_table.is_none() && p.mapping.steer_torque.is_some() {
+            self.vehicle.torque_table = p.torque_table_path.clone().filter(|t| t.is_file());
+        }
         self.profile = Some(p);
         Ok(())
     }
@@ -496,6 +505,9 @@ impl Config {
         if let Some(p) = self.vehicle.table.as_mut() {
             fix(p);
         }
+        if let Some(p) = self.vehicle.torque_table.as_mut() {
+            fix(p);
+        }
         if let Some(p) = self.monitor.as_mut() {
             fix(p);
         }
@@ -533,6 +545,7 @@ impl Config {
             ("input.mapping", &self.input.mapping),
             ("vehicle.params", &self.vehicle.params),
             ("vehicle.table", &self.vehicle.table),
+            ("vehicle.torque_table", &self.vehicle.torque_table),
         ] {
             if let Some(p) = p {
                 if !p.is_file() {

@@ -1,7 +1,8 @@
 //! Chooses the event stage for a configuration: the clearance observer
 //! ([`crate::pipeline::ObserverStage`], on the monitor's settings in effect), with the response table of `vehicle.table` when
 //! set. Without a table, events and the shimmy-amplitude alert still work; the clearance is
-//! not estimated (never a fake estimate).
+//! not estimated (never a fake estimate). With `vehicle.torque_table` too, events with a
+//! live torsion-bar torque feed the torque's estimator, which the estimate then comes from.
 
 use anyhow::Context;
 
@@ -30,5 +31,35 @@ pub fn for_config(cfg: &Config) -> anyhow::Result<Box<dyn EventStage>> {
         }
         None => None,
     };
-    Ok(Box::new(ObserverStage::new(&cfg.settings, table)?))
+    let torque = match &cfg.vehicle.torque_table {
+        Some(p) => {
+            let t = ResponseTable::load(p)
+                .with_context(|| format!("vehicle.torque_table: cannot load {}", p.display()))?;
+            if let Some(profile) = &cfg.profile {
+                profile.check_torque_table(&t).with_context(|| {
+                    format!(
+                        "vehicle.torque_table {} for profile {}",
+                        p.display(),
+                        profile.name
+                    )
+                })?;
+            } else {
+                let mut v = crate::cli::estimate::load_vehicle(cfg.vehicle.params.as_deref())?;
+                v.column.enabled = true;
+                if t.sensor.signal != crate::observer::features::SteerSignal::TorqueNm {
+                    anyhow::bail!(
+                        "vehicle.torque_table {}: a table of the steering angle, not the torque",
+                        p.display()
+                    );
+                }
+                t.check_vehicle(&crate::observer::table::vehicle_hash(&v)?)
+                    .with_context(|| format!("vehicle.torque_table {}", p.display()))?;
+            }
+            Some(t)
+        }
+        None => None,
+    };
+    Ok(Box::new(
+        ObserverStage::new(&cfg.settings, table)?.with_torque_table(torque)?,
+    ))
 }

@@ -40,6 +40,9 @@ pub struct Sample {
     /// A steering frame was rejected (checksum, counter, short) or the steering signal timed
     /// out with this update: counted against the event's data quality.
     pub steer_invalid: bool,
+    /// A new torsion-bar (driver) steering torque sample (N·m, + turning left), MODEL.md §15's
+    /// −T_c, where the bus carries it.
+    pub torque_nm: Option<f64>,
 }
 
 /// Detection thresholds (`[events]` of config/observer.toml).
@@ -230,11 +233,14 @@ impl EventRecord {
 }
 
 /// A finished event: its record and its steering samples `(t_ns, angle_rad)`, pre-roll first.
-/// `window` indexes the samples of `[t_start, t_end + tail]`.
+/// `window` indexes the samples of `[t_start, t_end + tail]`. `torque` holds the steering
+/// torque samples `(t_ns, torque_nm)` over the same span (pre-roll first; empty when the bus
+/// carries no torque).
 pub struct Finished<'a> {
     pub record: EventRecord,
     pub samples: &'a [(i64, f64)],
     pub window: (usize, usize),
+    pub torque: &'a [(i64, f64)],
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -254,6 +260,9 @@ pub struct Detector {
     cfg: EventConfig,
     state: State,
     steer: VecDeque<(i64, f64)>,
+    /// Steering torque samples, kept over the same span as `steer` (its own ring: the torque
+    /// comes in its own message at its own rate).
+    torque: VecDeque<(i64, f64)>,
     decel: VecDeque<(i64, f64)>,
     scratch: Vec<f64>,
     speed_hist: heapless::Deque<(i64, f64), 64>,
@@ -300,6 +309,7 @@ impl Detector {
         Detector {
             state: State::Idle,
             steer: VecDeque::with_capacity(cap),
+            torque: VecDeque::with_capacity(cap),
             decel: VecDeque::with_capacity(cap),
             scratch: Vec::with_capacity(cap),
             speed_hist: heapless::Deque::new(),
@@ -349,6 +359,7 @@ impl Detector {
         if self.finished.take().is_some() {
             // The previous event's samples were lent out; drop them now.
             self.steer.clear();
+            self.torque.clear();
             self.decel.clear();
         }
         self.update_kinematics(s);
@@ -363,6 +374,16 @@ impl Detector {
             }
             if self.steer.len() < self.steer.capacity() {
                 self.steer.push_back((s.t_ns, a));
+            }
+        }
+        if let Some(m) = s.torque_nm {
+            // The torque ring is as long as the angle's; the torque is sent no faster than the
+            // angle on the buses mapped, so a full ring mid-event is the angle's truncation too.
+            if self.torque.len() == self.torque.capacity() && self.state == State::Idle {
+                self.torque.pop_front();
+            }
+            if self.torque.len() < self.torque.capacity() {
+                self.torque.push_back((s.t_ns, m));
             }
         }
         if s.steer_invalid && self.state != State::Idle {
@@ -407,6 +428,7 @@ impl Detector {
     pub fn flush(&mut self) -> Option<Finished<'_>> {
         if self.finished.take().is_some() {
             self.steer.clear();
+            self.torque.clear();
             self.decel.clear();
         }
         match self.state {
@@ -496,6 +518,13 @@ impl Detector {
         {
             self.steer.pop_front();
         }
+        while self
+            .torque
+            .front()
+            .is_some_and(|&(t, _)| now_ns - t > keep_ns)
+        {
+            self.torque.pop_front();
+        }
     }
 
     fn start(&mut self, t_ns: i64) {
@@ -540,6 +569,7 @@ impl Detector {
             self.last_ignored = Some(app);
             self.ignored += 1;
             self.steer.clear();
+            self.torque.clear();
             self.decel.clear();
             return None;
         }
@@ -640,10 +670,12 @@ impl Detector {
         self.finished = Some(record.clone());
         self.finished_window = (i0, i1);
         self.truncated = false;
+        self.torque.make_contiguous();
         Some(Finished {
             record,
             samples: self.steer.as_slices().0,
             window: (i0, i1),
+            torque: self.torque.as_slices().0,
         })
     }
 }

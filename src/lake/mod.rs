@@ -150,6 +150,8 @@ pub struct Inputs {
     pub vehicle: String,
     pub dbc_sha256: String,
     pub table_sha256: Option<String>,
+    /// sha256 of the profile's torque table, when the run used one.
+    pub torque_table_sha256: Option<String>,
     /// sha256 of the mapping file and of the monitor's settings as used (their JSON).
     pub mapping_sha256: String,
     pub settings_sha256: String,
@@ -168,6 +170,12 @@ pub fn run_sha256(inputs: &Inputs, log_sha256: &[String]) -> String {
         &inputs.settings_sha256,
     ] {
         h.update(part.as_bytes());
+        h.update([0]);
+    }
+    // A run without a torque table hashes as before there was one.
+    if let Some(t) = &inputs.torque_table_sha256 {
+        h.update(b"torque:");
+        h.update(t.as_bytes());
         h.update([0]);
     }
     for s in log_sha256 {
@@ -390,6 +398,7 @@ impl Exporter {
                 model_version: model_version(),
                 table_sha256: self.inputs.table_sha256.clone(),
                 dbc_sha256: self.inputs.dbc_sha256.clone(),
+                torque_table_sha256: self.inputs.torque_table_sha256.clone(),
             };
             closed.extend(self.write_log_rows(index, &stamp, &rows, &schemas)?);
         }

@@ -33,6 +33,8 @@ pub struct Stamp {
     pub table_sha256: Option<String>,
     /// sha256 of the DBC file (hex).
     pub dbc_sha256: String,
+    /// sha256 of the torque table file (hex); None when the run had none.
+    pub torque_table_sha256: Option<String>,
 }
 
 /// The three tables' names, as their folders under the lake are named.
@@ -45,6 +47,7 @@ fn stamp_fields() -> Vec<Field> {
         Field::new("model_version", DataType::Utf8, false),
         Field::new("table_sha256", DataType::Utf8, true),
         Field::new("dbc_sha256", DataType::Utf8, false),
+        Field::new("torque_table_sha256", DataType::Utf8, true),
     ]
 }
 
@@ -170,6 +173,7 @@ fn stamp_columns(stamp: &Stamp, n: usize) -> Vec<ArrayRef> {
         col(Some(&stamp.model_version)),
         col(stamp.table_sha256.as_deref()),
         col(Some(&stamp.dbc_sha256)),
+        col(stamp.torque_table_sha256.as_deref()),
     ]
 }
 

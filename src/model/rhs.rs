@@ -421,6 +421,16 @@ impl Model {
     /// Steering-wheel angle seen by the sensor (rad): §8 kinematic pinion angle, or the §15
     /// rim angle when the column option is on.
     #[inline]
+    /// The driver's torque at the EPS torsion bar (N·m, + turning left, as a bus reports it):
+    /// −T_c of §15, T_c = k_c·(X/r_p − δ_sw) + c_tb·(X'/r_p − δ_sw'); 0 without the column.
+    pub fn driver_torque_nm(&self, y: &State) -> f64 {
+        if !self.column {
+            return 0.0;
+        }
+        -(self.k_c * (y[ix::X] / self.r_p - y[ix::SW])
+            + self.c_tb * (y[ix::XD] / self.r_p - y[ix::SWD]))
+    }
+
     pub fn delta_sw(&self, y: &State) -> f64 {
         if self.column {
             y[ix::SW]

@@ -33,9 +33,16 @@ use super::simulate::NuisanceRanges;
 use super::table::Cell;
 use crate::model::VehicleParams;
 
-/// Number of nuisance coordinates.
-pub const N_COORDS: usize = 7;
-/// The nuisance coordinates ξ ∈ [−1, 1]⁷ of vehicle `v` drawn around `nominal` with `r`.
+/// Number of nuisance coordinates: the seven of every vehicle and the three of the §15 column.
+pub const N_COORDS: usize = 10;
+/// The coordinates every vehicle has (x0-x6); the column's (x7 J_sw, x8 k_tb, x9 c_tb) follow.
+pub const N_BASE_COORDS: usize = 7;
+
+/// The nuisance coordinates ξ ∈ [−1, 1]¹⁰ of vehicle `v` drawn around `nominal` with `r`:
+/// x0-x4 the steering stiffnesses and dampings, x5 the unbalance, x6 the road-noise level, and,
+/// for a vehicle with the MODEL.md §15 column whose prior draws it, x7-x9 its rim inertia J_sw,
+/// torsion-bar stiffness k_tb and damping c_tb mapped linearly from their uniform ranges (0
+/// otherwise, and for a 5-DOF vehicle, whose law then has no term in them).
 pub fn coords(nominal: &VehicleParams, v: &VehicleParams, r: &NuisanceRanges) -> [f64; N_COORDS] {
     let (a, b) = (&nominal.steering, &v.steering);
     let rel = r.stiffness_damping_rel.max(1e-12);
@@ -45,6 +52,24 @@ pub fn coords(nominal: &VehicleParams, v: &VehicleParams, r: &NuisanceRanges) ->
     let u_mid = 0.5 * (uhi * ulo).ln();
     let (nlo, nhi) = r.road_noise_factor;
     let n_factor = v.excitation.noise_std_nm / nominal.excitation.noise_std_nm;
+    let lin = |x: f64, (lo, hi): (f64, f64)| {
+        if hi > lo {
+            (2.0 * x - lo - hi) / (hi - lo)
+        } else {
+            0.0
+        }
+    };
+    let col = match (&r.column, v.column.enabled) {
+        (Some(c), true) => [
+            lin(v.column.inertia_kgm2, c.inertia_kgm2),
+            lin(v.column.torsion_bar_nm_per_rad, c.torsion_bar_nm_per_rad),
+            lin(
+                v.column.torsion_bar_damping_nms_per_rad,
+                c.torsion_bar_damping_nms_per_rad,
+            ),
+        ],
+        _ => [0.0; 3],
+    };
     [
         f(
             a.kingpin_stiffness_nm_per_rad,
@@ -56,15 +81,26 @@ pub fn coords(nominal: &VehicleParams, v: &VehicleParams, r: &NuisanceRanges) ->
         f(a.restraint_damping_ns_per_m, b.restraint_damping_ns_per_m),
         ((v.excitation.unbalance_kgm / nominal.excitation.unbalance_kgm).ln() - u_mid) / u_half,
         (2.0 * n_factor - nlo - nhi) / (nhi - nlo).max(1e-12),
+        col[0],
+        col[1],
+        col[2],
     ]
 }
 
-/// `n` vehicles drawn uniformly over [−1, 1]⁷ (the prior in [`coords`]), from `seed`.
+/// `n` vehicles drawn uniformly over [−1, 1]⁷ in the seven coordinates every vehicle has (the
+/// prior in [`coords`]), from `seed`; the column's coordinates stay 0 (emulated vehicles do
+/// not vary the column).
 pub fn draw_coords(n: usize, seed: u64) -> Vec<[f64; N_COORDS]> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     rng.set_stream(13);
     (0..n)
-        .map(|_| std::array::from_fn(|_| rng.random_range(-1.0..=1.0)))
+        .map(|_| {
+            let mut x = [0.0; N_COORDS];
+            for v in x.iter_mut().take(N_BASE_COORDS) {
+                *v = rng.random_range(-1.0..=1.0);
+            }
+            x
+        })
         .collect()
 }
 
@@ -156,7 +192,7 @@ mod tests {
                 hi[k] = hi[k].max(x);
             }
         }
-        for k in 0..N_COORDS {
+        for k in 0..N_BASE_COORDS {
             assert!(
                 lo[k] >= -1.0 - 1e-9 && hi[k] <= 1.0 + 1e-9,
                 "coord {k}: {lo:?} {hi:?}"

@@ -74,6 +74,9 @@ pub struct EstimatorConfig {
     /// the posterior without moving its peak: the events count as fewer than they are, for
     /// what the model misses that is shared between them.
     pub evidence_power: f64,
+    /// Method "linear": `evidence_power` of the torsion-bar torque's estimator (a torque table
+    /// misses other things than an angle table, so its events are tempered on their own).
+    pub torque_evidence_power: f64,
     /// Method "linear": the wheels' unbalance phase difference is the same in all of the
     /// vehicle's events ("vehicle"), new in each ("event"), or either, as the events say
     /// ("either"); see [`super::marginal`].
@@ -120,6 +123,7 @@ impl Default for EstimatorConfig {
             misfit_std: 0.0,
             damping_grid: 9,
             evidence_power: 0.275,
+            torque_evidence_power: 0.2,
             phase: "either".into(),
             phase_grid: 8,
             unbalance_grid: 7,
@@ -173,11 +177,13 @@ impl EstimatorConfig {
                 self.method
             );
         }
-        if !(self.evidence_power > 0.0 && self.evidence_power <= 1.0) {
-            anyhow::bail!(
-                "estimator.evidence_power: must be in (0, 1] (got {})",
-                self.evidence_power
-            );
+        for (key, p) in [
+            ("evidence_power", self.evidence_power),
+            ("torque_evidence_power", self.torque_evidence_power),
+        ] {
+            if !(p > 0.0 && p <= 1.0) {
+                anyhow::bail!("estimator.{key}: must be in (0, 1] (got {p})");
+            }
         }
         non_negative("misfit_std", self.misfit_std)?;
         non_negative("evidence_half_life_km", self.evidence_half_life_km)?;

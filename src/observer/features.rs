@@ -38,6 +38,47 @@ use serde::{Deserialize, Serialize};
 pub const BAND_HZ: (f64, f64) = (3.0, 25.0);
 pub const BAND_ORDER: usize = 4;
 
+/// The band used at sample rate `fs_hz`: MODEL.md §11's, its upper edge lowered to 0.4·fs where
+/// the rate cannot carry 25 Hz (a 50 Hz torque signal: 3–20 Hz). Unchanged at the steering
+/// angle's rates (the detector needs more than 50 Hz there).
+pub fn band_hz(fs_hz: f64) -> (f64, f64) {
+    (BAND_HZ.0, BAND_HZ.1.min(0.4 * fs_hz))
+}
+
+/// The steering signal whose features a response table describes and the estimator uses.
+/// Features, noise and floors are in that signal's unit (deg or N·m).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SteerSignal {
+    /// The steering-wheel angle δ_sw (MODEL.md §8; the rim with the §15 column), in deg.
+    #[default]
+    AngleDeg,
+    /// The EPS torsion-bar torque (MODEL.md §15, −T_c), in N·m.
+    TorqueNm,
+}
+
+impl SteerSignal {
+    /// Factor from the samples' SI unit (rad, N·m) to the features' unit (deg, N·m).
+    pub fn from_si(self) -> f64 {
+        match self {
+            SteerSignal::AngleDeg => 1f64.to_degrees(),
+            SteerSignal::TorqueNm => 1.0,
+        }
+    }
+
+    /// The features' unit, for messages.
+    pub fn unit(self) -> &'static str {
+        match self {
+            SteerSignal::AngleDeg => "deg",
+            SteerSignal::TorqueNm => "N·m",
+        }
+    }
+
+    pub fn is_angle(&self) -> bool {
+        *self == SteerSignal::AngleDeg
+    }
+}
+
 /// Features of one event.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Features {
@@ -110,7 +151,8 @@ impl Extractor {
             .as_ref()
             .is_none_or(|(f, _, _)| (f - fs_hz).abs() > 1e-9);
         if stale {
-            let bp = Bandpass::new(fs_hz, BAND_HZ.0, BAND_HZ.1, BAND_ORDER)?;
+            let (lo, hi) = band_hz(fs_hz);
+            let bp = Bandpass::new(fs_hz, lo, hi, BAND_ORDER)?;
             let enbw = enbw_fraction(&bp);
             self.filt = Some((fs_hz, bp, enbw));
         }
@@ -129,6 +171,29 @@ impl Extractor {
         noise: SensorNoise,
         quant_step_deg: f64,
     ) -> Result<Features, AnalysisError> {
+        self.extract_signal(
+            SteerSignal::AngleDeg,
+            samples,
+            t0_ns,
+            t1_ns,
+            noise,
+            quant_step_deg,
+        )
+    }
+
+    /// [`Self::extract`] for the steering signal `signal`: `samples` in its SI unit (rad,
+    /// N·m), the features, `noise` and `quant_step` in its feature unit (deg, N·m; the
+    /// fields' `_deg` names then stand for N·m).
+    pub fn extract_signal(
+        &mut self,
+        signal: SteerSignal,
+        samples: &[(i64, f64)],
+        t0_ns: i64,
+        t1_ns: i64,
+        noise: SensorNoise,
+        quant_step_deg: f64,
+    ) -> Result<Features, AnalysisError> {
+        let to_unit = signal.from_si();
         if samples.len() < 8 {
             return Err(AnalysisError::TooShort(format!(
                 "{} steering samples, need 8",
@@ -159,7 +224,7 @@ impl Extractor {
             if i0.is_none() && t >= t0_ns {
                 i0 = Some(self.grid.len());
             }
-            self.grid.push(a.to_degrees());
+            self.grid.push(a * to_unit);
             if t <= t1_ns {
                 i1 = self.grid.len();
             }

@@ -9,10 +9,11 @@
 //!   z_f = Σ_t β_t · m_t(d, ξ, ψ) + η_f + ε_f,
 //!
 //! over monomials m_t ([`Term`], e.g. `x1^2`, `u*x5`, `d`) of the deceleration d (scaled as
-//! (d − 0.55)/0.25), the nuisance coordinates ξ ∈ [−1, 1]⁷ of [`super::emulate::coords`] (x0 k_s,
-//! x1 c_s, x2 k_t, x3 k_g, x4 c_g of MODEL.md §9; x5 the unbalance, x6 the road-noise level of
-//! §7) and ψ = cos(φ_R − φ_L) (`u`), the cosine of the difference of the two wheels' unbalance
-//! phases (§7).
+//! (d − 0.55)/0.25), the nuisance coordinates ξ ∈ [−1, 1]¹⁰ of [`super::emulate::coords`] (x0
+//! k_s, x1 c_s, x2 k_t, x3 k_g, x4 c_g of MODEL.md §9; x5 the unbalance, x6 the road-noise level
+//! of §7; with the §15 column x7 J_sw, x8 k_tb, x9 c_tb, which only [`COLUMN_TERMS`] use) and
+//! ψ = cos(φ_R − φ_L) (`u`), the cosine of the difference of the two wheels' unbalance phases
+//! (§7).
 //!
 //! Why these coordinates enter as they do:
 //! * ξ₁, the kingpin damping c_s, is a threshold, not a slope: the rattle exists because the
@@ -58,9 +59,9 @@ pub const N_FEAT: usize = 3;
 pub const DAMPING: usize = 1;
 /// The unbalance coordinate (gridded when a term is nonlinear in it).
 pub const UNBALANCE: usize = 5;
-/// Index of ψ = cos(φ_R − φ_L) among a term's variables (after the seven coordinates).
+/// Index of ψ = cos(φ_R − φ_L) among a term's variables (after the coordinates).
 pub const PHASE: usize = N_COORDS;
-/// Variables of a term: the seven coordinates and ψ.
+/// Variables of a term: the coordinates and ψ.
 pub const N_VARS: usize = N_COORDS + 1;
 /// Most closed-form coordinates (all but ξ₁).
 pub const N_LIN: usize = N_COORDS - 1;
@@ -130,7 +131,7 @@ impl std::str::FromStr for Term {
                     .and_then(|k| k.parse::<usize>().ok())
                     .filter(|&k| k < N_COORDS)
                     .ok_or_else(|| {
-                        anyhow::anyhow!("term `{s}`: unknown variable `{name}` (d, u, x0-x6)")
+                        anyhow::anyhow!("term `{s}`: unknown variable `{name}` (d, u, x0-x9)")
                     })?
             };
             if pow == 0 || pow > 4 || t.exp[idx] + pow > 4 {
@@ -193,6 +194,13 @@ pub fn parse_terms(s: &str) -> anyhow::Result<Vec<Term>> {
 /// The law `shimmy calibrate` fits by default: intercept and deceleration; the seven
 /// coordinates; c_s to the cube and its products with the others; ψ and ψ² and ψ's products
 /// with c_s and the unbalance (docs/ACCURACY.md says how this was chosen).
+/// The terms a table of the torsion-bar torque adds to [`DEFAULT_TERMS`] (`shimmy calibrate
+/// --signal torque`): the column's rim inertia, torsion-bar stiffness and damping (x7-x9). The
+/// torque reads the torsion bar's twist times k_tb, so k_tb alone moves it by a factor 3 over
+/// the published range (docs/COLUMN.md); with its slope set by the kingpin damping like the
+/// others'.
+pub const COLUMN_TERMS: &str = "x7,x8,x9,x1*x8";
+
 pub const DEFAULT_TERMS: &str = "1,d,x0,x1,x2,x3,x4,x5,x6,x1^2,x1^3,x0*x1,x1*x2,x1*x3,x1*x4,\
                                  x1*x5,x1*x6,u,u^2,x1*u,x5*u";
 
@@ -686,10 +694,10 @@ mod tests {
         assert_eq!(t.to_string(), "x1^2");
         assert_eq!("u*x5".parse::<Term>().unwrap().to_string(), "x5*u");
         assert_eq!("d*d".parse::<Term>().unwrap().to_string(), "d^2");
-        for bad in ["x7", "y", "d^3", "x1^0", "x1^9", "d*d^2"] {
+        for bad in ["x10", "y", "d^3", "x1^0", "x1^9", "d*d^2"] {
             assert!(bad.parse::<Term>().is_err(), "{bad}");
         }
-        let x = [0.5, -0.5, 0.0, 0.0, 0.0, 2.0, 0.0, 0.25];
+        let x = [0.5, -0.5, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 0.25];
         assert_eq!("x1^2*u".parse::<Term>().unwrap().eval(&x, 3.0), 0.0625);
         assert_eq!("d*x5".parse::<Term>().unwrap().eval(&x, 3.0), 6.0);
         let default = parse_terms(DEFAULT_TERMS).unwrap();

@@ -142,6 +142,37 @@ pub struct EventOut {
     pub quant_step_deg: f64,
     pub missing_samples: u32,
     pub invalid_updates: u32,
+    /// With a torque table ([`Observer::with_torque_table`]): the band-passed torsion-bar
+    /// torque's RMS, peak and pre-brake RMS (N·m, MODEL.md §15; band [`features::band_hz`] of
+    /// its rate), and whether the torque estimator used the event.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub torque: Option<TorqueEventOut>,
+}
+
+/// The torque features of one event (see [`EventOut::torque`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct TorqueEventOut {
+    pub rms_bp_nm: Option<f64>,
+    pub peak_bp_nm: Option<f64>,
+    pub cruise_rms_bp_nm: Option<f64>,
+    pub sample_hz: Option<f64>,
+    pub used: bool,
+    /// Why not used: `"no_torque"` (none on the bus in the window, or a constant one),
+    /// `"sensor_mismatch"` (rate not the torque table's), or the event's own reason.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unused_reason: Option<&'static str>,
+}
+
+/// With a torque table: which signal the report's estimate comes from and how many events each
+/// channel used.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct SignalUse {
+    /// `"torque_nm"` when the torque estimator used at least one event, else `"angle_deg"`.
+    pub estimate_from: features::SteerSignal,
+    pub events_used_torque: u64,
+    /// Events usable for the angle but without a usable torque (no torque, a constant torque,
+    /// a torque at another rate than the table's).
+    pub events_without_torque: u64,
 }
 
 /// The whole answer of `shimmy estimate`.
@@ -175,6 +206,9 @@ pub struct Report {
     /// ([`Unused::SensorMismatch`]).
     pub events_sensor_mismatch: u64,
     pub p_clearance_above_threshold: Option<f64>,
+    /// With a torque table: the signal the estimate comes from, events per channel.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub signals: Option<SignalUse>,
     /// Method "linear", `phase = "either"`: posterior probability that the wheels' unbalance
     /// phase difference stayed the same over the events (src/observer/marginal.rs).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -182,6 +216,38 @@ pub struct Report {
     /// Method "linear": whether the events fit the table's model (src/observer/fit.rs).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub model_fit: Option<fit::ModelFit>,
+}
+
+/// One used event's features into `est` (on `table`), placed on the detector's odometer.
+fn feed_event(
+    est: &mut Estimator,
+    table: &ResponseTable,
+    f: &Features,
+    rec: &crate::events::EventRecord,
+) {
+    est.update_event(
+        table,
+        f.rms_deg,
+        f.peak_deg,
+        f.cruise_rms_deg,
+        rec.v0_kmh,
+        rec.decel_g,
+        rec.odometer_m,
+    );
+}
+
+/// [`Unused`]'s name as it serialises.
+fn unused_name(u: Unused) -> &'static str {
+    match u {
+        Unused::SpeedOutOfRange => "speed_out_of_range",
+        Unused::DecelOutOfRange => "decel_out_of_range",
+        Unused::NotStraight => "not_straight",
+        Unused::TooShort => "too_short",
+        Unused::LowSampleRate => "low_sample_rate",
+        Unused::MissingData => "missing_data",
+        Unused::Truncated => "truncated",
+        Unused::SensorMismatch => "sensor_mismatch",
+    }
 }
 
 /// Most events kept in the report (memory bound).
@@ -216,6 +282,24 @@ pub struct Observer {
     /// Whether each used event goes into the estimator here (placed on the detector's
     /// odometer), or the caller feeds it ([`Self::new_caller_fed`]).
     feeds_estimator: bool,
+    /// The torsion-bar torque channel, with a torque table.
+    torque: Option<TorqueChannel>,
+}
+
+/// The second steering channel: the torsion-bar torque's response table and its own
+/// estimator. Its evidence is kept apart from the angle's (each estimator is consistent with
+/// its own table's nuisance vehicles); the report takes the torque's posterior once it has
+/// used an event, the angle's otherwise (a bus or a plant without a live torque degrades to
+/// the angle instead of failing).
+struct TorqueChannel {
+    table: ResponseTable,
+    estimator: Estimator,
+    /// Its own extractor: the torque comes at another rate than the angle, and one extractor
+    /// would redesign its filter at every switch.
+    extractor: Extractor,
+    noise: features::SensorNoise,
+    used: u64,
+    without: u64,
 }
 
 impl Observer {
@@ -240,8 +324,52 @@ impl Observer {
             unused: UnusedCounts::default(),
             used_total: 0,
             feeds_estimator: true,
+            torque: None,
             cfg,
         })
+    }
+
+    /// Adds the torsion-bar torque channel: `table` must describe the torque
+    /// ([`features::SteerSignal::TorqueNm`]). Events with a live torque at the table's rate
+    /// then also feed the torque's estimator, and the report's estimate comes from it once it
+    /// has used an event.
+    pub fn with_torque_table(mut self, table: ResponseTable) -> anyhow::Result<Observer> {
+        if table.sensor.signal != features::SteerSignal::TorqueNm {
+            anyhow::bail!(
+                "the torque table is a table of the steering angle (its signal is not \
+                 `torque_nm`): build it with `shimmy calibrate --signal torque`"
+            );
+        }
+        let estimator = Estimator::new(&table, self.torque_estimator_config())?;
+        let noise = features::SensorNoise {
+            quant_step_deg: table.sensor.step_deg,
+            noise_deg: table.sensor.noise_deg,
+        };
+        self.torque = Some(TorqueChannel {
+            table,
+            estimator,
+            extractor: Extractor::new(),
+            noise,
+            used: 0,
+            without: 0,
+        });
+        Ok(self)
+    }
+
+    /// The torque channel's estimator with its table, for a caller that feeds it
+    /// ([`Self::new_caller_fed`]); `None` without a torque table.
+    pub fn torque_estimator_mut(&mut self) -> Option<(&mut Estimator, &ResponseTable)> {
+        let t = self.torque.as_mut()?;
+        Some((&mut t.estimator, &t.table))
+    }
+
+    /// The estimator the report reads: the torque's once it has used an event, else the
+    /// angle's.
+    pub fn active_estimator(&self) -> Option<&Estimator> {
+        match &self.torque {
+            Some(t) if t.estimator.events_used() > 0 => Some(&t.estimator),
+            _ => self.estimator.as_ref(),
+        }
     }
 
     /// As [`Self::new`], but the used events do not reach the estimator by themselves: the
@@ -268,7 +396,19 @@ impl Observer {
         if let Some(t) = self.table.as_ref() {
             self.estimator = Some(Estimator::new(t, self.cfg.estimator.clone())?);
         }
+        let tcfg = self.torque_estimator_config();
+        if let Some(t) = self.torque.as_mut() {
+            t.estimator = Estimator::new(&t.table, tcfg)?;
+        }
         Ok(())
+    }
+
+    /// The `[estimator]` settings of the torque's estimator: its own evidence power.
+    fn torque_estimator_config(&self) -> EstimatorConfig {
+        EstimatorConfig {
+            evidence_power: self.cfg.estimator.torque_evidence_power,
+            ..self.cfg.estimator.clone()
+        }
     }
 
     pub fn push(&mut self, s: &Sample) {
@@ -276,8 +416,9 @@ impl Observer {
             self.note_ignored();
             return;
         };
+        let tq = Self::measure_torque(&self.cfg, &mut self.torque, &fin);
         let (rec, feats) = Self::measure(&mut self.extractor, &self.cfg, fin);
-        self.on_event(rec, feats);
+        self.on_event(rec, feats, tq);
     }
 
     /// Closes an event still open at the end of the input.
@@ -286,8 +427,48 @@ impl Observer {
             self.note_ignored();
             return;
         };
+        let tq = Self::measure_torque(&self.cfg, &mut self.torque, &fin);
         let (rec, feats) = Self::measure(&mut self.extractor, &self.cfg, fin);
-        self.on_event(rec, feats);
+        self.on_event(rec, feats, tq);
+    }
+
+    /// The torque features of a finished event, with a torque channel: `None` without one,
+    /// `Some(None)` when the event has no torque, too few samples or a torque that never moved.
+    fn measure_torque(
+        cfg: &ObserverConfig,
+        torque: &mut Option<TorqueChannel>,
+        fin: &crate::events::Finished<'_>,
+    ) -> Option<Option<Features>> {
+        let ch = torque.as_mut()?;
+        Some(Self::torque_features(&mut ch.extractor, cfg, ch.noise, fin))
+    }
+
+    /// The torque features over the same window as [`Self::measure`]'s, in N·m; `None` when
+    /// the torque is absent, too short, or constant (a bus sending a dead value).
+    pub(crate) fn torque_features(
+        extractor: &mut Extractor,
+        cfg: &ObserverConfig,
+        noise: features::SensorNoise,
+        fin: &crate::events::Finished<'_>,
+    ) -> Option<Features> {
+        let tq = fin.torque;
+        let first = tq.first()?.1;
+        if tq.iter().all(|x| x.1 == first) {
+            return None;
+        }
+        let rec = &fin.record;
+        let t0 = (rec.t_start_s * 1e9).round() as i64;
+        let t1 = ((rec.t_end_s + cfg.events.tail_s) * 1e9).round() as i64;
+        extractor
+            .extract_signal(
+                features::SteerSignal::TorqueNm,
+                tq,
+                t0,
+                t1,
+                noise,
+                noise.quant_step_deg,
+            )
+            .ok()
     }
 
     /// Keeps the application the detector just ignored, if it ignored one.
@@ -371,7 +552,13 @@ impl Observer {
         }
     }
 
-    fn on_event(&mut self, rec: crate::events::EventRecord, feats: Option<Features>) {
+    fn on_event(
+        &mut self,
+        rec: crate::events::EventRecord,
+        feats: Option<Features>,
+        torque_feats: Option<Option<Features>>,
+    ) {
+        let torque_out = torque_feats.map(|tf| self.on_torque(&rec, tf));
         let mut used = rec.used && feats.is_some();
         let mut reason = rec.unused_reason;
         if rec.used && feats.is_none() {
@@ -400,15 +587,7 @@ impl Observer {
             self.estimator.as_mut(),
             self.table.as_ref(),
         ) {
-            est.update_event(
-                t,
-                f.rms_deg,
-                f.peak_deg,
-                f.cruise_rms_deg,
-                rec.v0_kmh,
-                rec.decel_g,
-                rec.odometer_m,
-            );
+            feed_event(est, t, f, &rec);
         }
         let out = EventOut {
             t_start: rec.t_start_s,
@@ -426,6 +605,7 @@ impl Observer {
             quant_step_deg: rec.quality.quant_step_deg,
             missing_samples: rec.quality.missing_samples,
             invalid_updates: rec.quality.invalid_updates,
+            torque: torque_out,
         };
         if self.events.len() >= MAX_EVENTS_KEPT {
             self.events_dropped += 1;
@@ -434,6 +614,40 @@ impl Observer {
         }
         self.last_event = Some(out);
         self.last_event_odometer_m = rec.odometer_m;
+    }
+
+    /// The torque side of one finished event: whether its torque is usable, and (when this
+    /// observer feeds its estimators) the torque estimator's update.
+    fn on_torque(
+        &mut self,
+        rec: &crate::events::EventRecord,
+        tf: Option<Features>,
+    ) -> TorqueEventOut {
+        let feeds = self.feeds_estimator;
+        let ch = self.torque.as_mut().expect("called with a torque channel");
+        let reason = match &tf {
+            _ if !rec.used => rec.unused_reason.map(unused_name),
+            None => Some("no_torque"),
+            Some(f) if !ch.table.sensor.matches(f.fs_hz, 0.0) => Some("sensor_mismatch"),
+            Some(_) => None,
+        };
+        let used = reason.is_none();
+        if used {
+            ch.used += 1;
+        } else if rec.used {
+            ch.without += 1;
+        }
+        if let (true, true, Some(f)) = (feeds, used, tf.as_ref()) {
+            feed_event(&mut ch.estimator, &ch.table, f, rec);
+        }
+        TorqueEventOut {
+            rms_bp_nm: tf.map(|f| f.rms_deg),
+            peak_bp_nm: tf.map(|f| f.peak_deg),
+            cruise_rms_bp_nm: tf.and_then(|f| f.cruise_rms_deg),
+            sample_hz: tf.map(|f| f.fs_hz),
+            used,
+            unused_reason: reason,
+        }
     }
 
     /// The events kept for the report (at most [`MAX_EVENTS_KEPT`]).
@@ -465,9 +679,8 @@ impl Observer {
 
     pub fn report(&self) -> Report {
         let a = &self.cfg.alerts;
-        let summary = self
-            .estimator
-            .as_ref()
+        let active = self.active_estimator();
+        let summary = active
             .filter(|e| e.events_used() > 0)
             .map(|e| (e.summary(), e.prob_above(a.clearance_mm)));
         let rej = self.rejections();
@@ -521,8 +734,17 @@ impl Observer {
                 format!("below {:.2} mm ({} events)", s.below_mm, s.events_used),
             ),
         };
+        let from_torque = self
+            .torque
+            .as_ref()
+            .is_some_and(|t| t.estimator.events_used() > 0);
+        let verdict = if from_torque {
+            format!("{verdict} from the steering torque")
+        } else {
+            verdict
+        };
         let z_max = self.cfg.estimator.fit_z_max;
-        let model_fit = self.estimator.as_ref().and_then(|e| {
+        let model_fit = active.and_then(|e| {
             let (dev, dof) = e.fit()?;
             let mut f = fit::ModelFit::new(dev, dof, z_max);
             f.ln_evidence = e.ln_evidence().map(|l| l[0]);
@@ -554,10 +776,16 @@ impl Observer {
             events_dropped: self.events_dropped,
             events_sensor_mismatch: self.sensor_mismatch,
             p_clearance_above_threshold: summary.map(|s| s.1),
-            p_wheel_phase_fixed: self
-                .estimator
-                .as_ref()
-                .and_then(|e| e.phase_fixed_probability()),
+            signals: self.torque.as_ref().map(|t| SignalUse {
+                estimate_from: if t.estimator.events_used() > 0 {
+                    features::SteerSignal::TorqueNm
+                } else {
+                    features::SteerSignal::AngleDeg
+                },
+                events_used_torque: t.used,
+                events_without_torque: t.without,
+            }),
+            p_wheel_phase_fixed: active.and_then(|e| e.phase_fixed_probability()),
             model_fit,
         }
     }

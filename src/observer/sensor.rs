@@ -11,9 +11,11 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
+use super::features::SteerSignal;
+
 /// Sensor parameters: recorded in the response table (`sensor`), chosen with `shimmy calibrate
 /// --sensor-rate-hz / --sensor-step-deg / --sensor-noise-deg`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SensorModel {
     pub rate_hz: f64,
@@ -25,6 +27,27 @@ pub struct SensorModel {
     /// small shimmy (a constant angle between two steps hides it).
     pub drift_rms_deg: f64,
     pub drift_tau_s: f64,
+    /// Which steering signal this sensor measures: the angle (deg) unless written; with
+    /// `torque_nm` the EPS torsion-bar torque, and every `_deg` field above is in N·m.
+    #[serde(skip_serializing_if = "SteerSignal::is_angle")]
+    pub signal: SteerSignal,
+}
+
+/// Written as the derived form was before the sensor had a `signal`, which an angle sensor
+/// leaves out: calibrate's work directories and events files name their sensor this way.
+impl std::fmt::Debug for SensorModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("SensorModel");
+        d.field("rate_hz", &self.rate_hz)
+            .field("step_deg", &self.step_deg)
+            .field("noise_deg", &self.noise_deg)
+            .field("drift_rms_deg", &self.drift_rms_deg)
+            .field("drift_tau_s", &self.drift_tau_s);
+        if !self.signal.is_angle() {
+            d.field("signal", &self.signal);
+        }
+        d.finish()
+    }
 }
 
 impl Default for SensorModel {
@@ -35,18 +58,34 @@ impl Default for SensorModel {
             noise_deg: 0.01,
             drift_rms_deg: 1.0,
             drift_tau_s: 2.0,
+            signal: SteerSignal::AngleDeg,
         }
     }
 }
 
 impl SensorModel {
+    /// The torsion-bar torque sensor of the Toyota profile's bus (config/vehicles/toyota_rav4:
+    /// 50 Hz, 0.01 N·m per count as assumed there, 0.02 N·m white noise as firmware-sim sends
+    /// it), with a driver's slow holding torque of 0.3 N·m RMS in place of the angle's drift
+    /// (an assumption: far below the band, it only moves the signal across its steps).
+    pub const TORQUE_RAV4: SensorModel = SensorModel {
+        rate_hz: 50.0,
+        step_deg: 0.01,
+        noise_deg: 0.02,
+        drift_rms_deg: 0.3,
+        drift_tau_s: 2.0,
+        signal: SteerSignal::TorqueNm,
+    };
+
     /// Checks that the sensor can be simulated and its events detected (the detector needs
-    /// more than 50 Hz for the 25 Hz band edge).
+    /// more than 50 Hz for the angle's 25 Hz band edge; a torque, whose band ends at 0.4 of its
+    /// rate, more than 25 Hz).
     pub fn validate(&self) -> anyhow::Result<()> {
         let ok = |x: f64, lo: f64, hi: f64| x.is_finite() && x >= lo && x <= hi;
-        if !(self.rate_hz > 50.0 && self.rate_hz <= 10_000.0) {
+        let min_hz = if self.signal.is_angle() { 50.0 } else { 25.0 };
+        if !(self.rate_hz > min_hz && self.rate_hz <= 10_000.0) {
             anyhow::bail!(
-                "sensor rate {} Hz: must be above 50 and at most 10000",
+                "sensor rate {} Hz: must be above {min_hz} and at most 10000",
                 self.rate_hz
             );
         }
@@ -84,7 +123,8 @@ impl SensorModel {
     }
 
     /// Sample `x_rad` (uniform at `fs_in_hz`, starting at t = 0) into `out` as `(t_ns, rad)`.
-    /// The sampling phase and the zero offset are drawn from `rng`.
+    /// The sampling phase and the zero offset are drawn from `rng`. A torque sensor takes and
+    /// gives N·m instead of rad.
     pub fn sample_into(
         &self,
         x_rad: &[f64],
@@ -132,13 +172,18 @@ impl SensorModel {
                 x_rad[k]
             };
             let n: f64 = StandardNormal.sample(rng);
-            let deg = v.to_degrees() + offset + self.noise_deg * n + drift(rng);
+            let angle = self.signal.is_angle();
+            let x = if angle { v.to_degrees() } else { v };
+            let deg = x + offset + self.noise_deg * n + drift(rng);
             let q = if self.step_deg > 0.0 {
                 (deg / self.step_deg).round() * self.step_deg
             } else {
                 deg
             };
-            out.push(((t * 1e9).round() as i64, q.to_radians()));
+            out.push((
+                (t * 1e9).round() as i64,
+                if angle { q.to_radians() } else { q },
+            ));
             t += period;
         }
     }

@@ -421,6 +421,9 @@ pub struct SimulatedEvent {
 pub struct ModelRun {
     pub fs_hz: f64,
     pub sw_rad: Vec<f64>,
+    /// The driver's torsion-bar torque (N·m, [`crate::model::rhs::Model::driver_torque_nm`]) at the
+    /// same instants; empty for a vehicle without the §15 column.
+    pub torque_nm: Vec<f64>,
     pub speed_mps: Vec<f64>,
     pub pedal: Vec<bool>,
     /// cos(φ_R − φ_L) of the run's unbalance phases (MODEL.md §7).
@@ -534,7 +537,11 @@ impl Runner {
                 pressed
             }
         };
-        b.out.sw_rad.push(b.sim.model().delta_sw(b.sim.state()));
+        let m = b.sim.model();
+        b.out.sw_rad.push(m.delta_sw(b.sim.state()));
+        if m.column {
+            b.out.torque_nm.push(m.driver_torque_nm(b.sim.state()));
+        }
         b.out.speed_mps.push(v);
         b.out.pedal.push(pressed);
         let onset = b.law.as_ref().map_or(self.onset_single, |l| l.onset);
@@ -762,6 +769,7 @@ pub fn run_model_grid(
             out: ModelRun {
                 fs_hz,
                 sw_rad: Vec::with_capacity(n),
+                torque_nm: Vec::with_capacity(if p.column.enabled { n } else { 0 }),
                 speed_mps: Vec::with_capacity(n),
                 pedal: Vec::with_capacity(n),
                 phase_cos: (phi_r - phi_l).cos(),
@@ -888,7 +896,25 @@ pub fn measure_run(
     }
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0b5e_77e5);
     let mut steer = Vec::with_capacity(sw.len() / 5);
-    sensor.sample_into(sw, fs_true, &mut rng, &mut steer);
+    // A torque sensor's events are still found on the steering angle (the detector's
+    // straightness and quality checks): an angle sensor as the reference bus has, drawn from
+    // its own stream, beside the torque.
+    let torque_sensor = !sensor.signal.is_angle();
+    let mut torque = Vec::new();
+    if torque_sensor {
+        if run.torque_nm.len() != sw.len() {
+            bail!(
+                "a torque sensor needs the model's torsion-bar torque: the vehicle has no \
+                 MODEL.md §15 column (enable [column] in its vehicle file)"
+            );
+        }
+        sensor.sample_into(&run.torque_nm, fs_true, &mut rng, &mut torque);
+        let mut rng_angle = ChaCha8Rng::seed_from_u64(seed ^ 0x0a4e_61e5);
+        SensorModel::default().sample_into(sw, fs_true, &mut rng_angle, &mut steer);
+    } else {
+        sensor.sample_into(sw, fs_true, &mut rng, &mut steer);
+    }
+    let mut next_torque = 0usize;
 
     // Merge the steering samples with a 50 Hz speed signal into the detector's stream.
     let mut det = Detector::new(cfg.events.clone());
@@ -896,26 +922,53 @@ pub fn measure_run(
     let speed_period_ns = 20_000_000i64;
     let mut next_speed_ns = 5_000_000i64;
     let mut found = None;
+    let noise = super::features::SensorNoise {
+        quant_step_deg: sensor.step_deg,
+        noise_deg: sensor.noise_deg,
+    };
+    let mut ex_torque = Extractor::new();
     let mut feed = |s: Sample, det: &mut Detector| {
-        det.push(&s)
-            .map(|fin| super::Observer::measure(&mut ex, cfg, fin))
+        det.push(&s).map(|fin| {
+            let tf = torque_sensor
+                .then(|| super::Observer::torque_features(&mut ex_torque, cfg, noise, &fin))
+                .flatten();
+            let (rec, f) = super::Observer::measure(&mut ex, cfg, fin);
+            (rec, if torque_sensor { tf } else { f })
+        })
     };
     let brake_at = |t_ns: i64| {
         let i = ((t_ns as f64 * 1e-9) * fs_true).round() as usize;
         pedal[i.min(pedal.len() - 1)]
     };
     for &(t_ns, a) in &steer {
-        while next_speed_ns <= t_ns && found.is_none() {
-            let i = ((next_speed_ns as f64 * 1e-9) * fs_true).round() as usize;
-            let v = speed[i.min(speed.len() - 1)];
-            let s = Sample {
-                t_ns: next_speed_ns,
-                speed_mps: Some(v),
-                brake: Some(brake_at(next_speed_ns)),
-                ..Default::default()
+        // The speed and torque samples up to this steering sample, in time order (the
+        // detector takes its brake edges in the order it is fed).
+        while found.is_none() {
+            let tq = torque.get(next_torque).filter(|x| x.0 <= t_ns);
+            let sp = (next_speed_ns <= t_ns).then_some(next_speed_ns);
+            let s = match (tq, sp) {
+                (Some(&(tt, m)), sp) if sp.is_none_or(|ts| tt < ts) => {
+                    next_torque += 1;
+                    Sample {
+                        t_ns: tt,
+                        torque_nm: Some(m),
+                        brake: Some(brake_at(tt)),
+                        ..Default::default()
+                    }
+                }
+                (_, Some(ts)) => {
+                    let i = ((ts as f64 * 1e-9) * fs_true).round() as usize;
+                    next_speed_ns += speed_period_ns;
+                    Sample {
+                        t_ns: ts,
+                        speed_mps: Some(speed[i.min(speed.len() - 1)]),
+                        brake: Some(brake_at(ts)),
+                        ..Default::default()
+                    }
+                }
+                _ => break,
             };
             found = feed(s, &mut det);
-            next_speed_ns += speed_period_ns;
         }
         if found.is_some() {
             break;
@@ -937,7 +990,11 @@ pub fn measure_run(
             let fin = det
                 .flush()
                 .context("the detector found no braking event in the simulated run")?;
-            super::Observer::measure(&mut ex, cfg, fin)
+            let tf = torque_sensor
+                .then(|| super::Observer::torque_features(&mut Extractor::new(), cfg, noise, &fin))
+                .flatten();
+            let (rec, f) = super::Observer::measure(&mut ex, cfg, fin);
+            (rec, if torque_sensor { tf } else { f })
         }
     };
     let features = feats.context("too few steering samples in the simulated event")?;

@@ -99,6 +99,9 @@ pub struct ResponseTable {
     pub format: String,
     /// FNV-1a hash of the vehicle parameters' canonical JSON.
     pub vehicle_hash: String,
+    /// The sensor the features were measured through; its `signal` says which steering
+    /// signal the table describes (with `torque_nm`, the sensor's and the cells' `_deg`
+    /// quantities are N·m of torsion-bar torque).
     pub sensor: SensorModel,
     /// Grid axes (increasing).
     pub clearance_mm: Vec<f64>,

@@ -14,7 +14,6 @@ use anyhow::{bail, Context};
 use super::{detector_sample, Monitor, ObserverStage};
 use crate::dbc::Database;
 use crate::events::Sample;
-use crate::observer::table::ResponseTable;
 use crate::observer::ObserverConfig;
 use crate::signals::mapping::MappingConfig;
 use crate::signals::{Mapper, Outcome, Update};
@@ -126,10 +125,11 @@ impl Offline {
     pub fn open(
         mapping_path: &Path,
         dbc: Option<&Path>,
-        table: Option<ResponseTable>,
+        tables: impl Into<super::Tables>,
         cfg: ObserverConfig,
         tool: &str,
     ) -> anyhow::Result<Offline> {
+        let tables = tables.into();
         let mapping = MappingConfig::from_toml_file(mapping_path)
             .with_context(|| format!("mapping {}", mapping_path.display()))?;
         let dbc_path = match dbc {
@@ -148,7 +148,8 @@ impl Offline {
             eprintln!("{tool}: mapping: {w}");
         }
         let rules = cfg.alerts.clone();
-        let monitor = Monitor::new(ObserverStage::new(&cfg, table)?, rules);
+        let stage = ObserverStage::new(&cfg, tables.angle)?.with_torque_table(tables.torque)?;
+        let monitor = Monitor::new(stage, rules);
         Ok(Offline {
             db,
             dbc_path,

@@ -33,7 +33,8 @@ use crate::signals::{Outcome, Update, VehicleSignals};
 ///
 /// * The brake counts as applied when the pedal switch says so or the pressure exceeds
 ///   `brake_on_pa` (`[events] brake_on_bar`); either alone when only one is mapped.
-/// * The steering angle, speed and acceleration are carried when this frame updated them.
+/// * The steering angle, speed, acceleration and steering torque are carried when this frame
+///   updated them.
 /// * A steering frame that was rejected (checksum, repeated counter, short payload), or
 ///   accepted with no valid angle, marks the steering invalid (the detector counts it against
 ///   the event's data quality).
@@ -66,13 +67,16 @@ pub fn detector_sample(
             if ch.accel {
                 s.accel_mps2 = snap.accel_mps2.valid();
             }
+            if ch.steer_torque {
+                s.torque_nm = snap.steer_torque_nm.valid();
+            }
         }
         Outcome::Rejected(_) => s.steer_invalid = Some(u.message) == steer_msg,
     }
     s
 }
 
-pub use observer_stage::ObserverStage;
+pub use observer_stage::{ObserverStage, Tables};
 
 /// Longest gap between two speed readings that is bridged (s): across a longer gap (a log split
 /// in two, a bus that went quiet) the distance is not guessed.

@@ -32,11 +32,43 @@ use crate::observer::{EventOut, Observer, ObserverConfig};
 /// Most used events whose evidence is kept for the posterior's restore.
 pub const MAX_EVIDENCE: usize = 2000;
 
+/// The response tables of one vehicle: the steering angle's and, where the car's bus carries
+/// the EPS torque and its profile names one, the torque's. An `Option<ResponseTable>` converts
+/// to the angle table alone.
+#[derive(Clone, Debug, Default)]
+pub struct Tables {
+    pub angle: Option<ResponseTable>,
+    pub torque: Option<ResponseTable>,
+}
+
+impl From<Option<ResponseTable>> for Tables {
+    fn from(angle: Option<ResponseTable>) -> Tables {
+        Tables {
+            angle,
+            torque: None,
+        }
+    }
+}
+
+impl Tables {
+    /// A profile's tables ([`crate::profile::Profile::load_table`],
+    /// [`crate::profile::Profile::load_torque_table`]).
+    pub fn of_profile(p: &crate::profile::Profile) -> anyhow::Result<Tables> {
+        Ok(Tables {
+            angle: p.load_table()?,
+            torque: p.load_torque_table()?,
+        })
+    }
+}
+
 /// One used event as the estimator saw it.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Evidence {
-    /// MODEL.md §11 band-passed steering-wheel RMS and peak (deg).
+    /// MODEL.md §11 band-passed steering-wheel RMS and peak (deg); NaN (null in the state)
+    /// for an event only the torque used.
+    #[serde(deserialize_with = "nan_if_null")]
     pub rms_deg: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub peak_deg: f64,
     /// Pre-brake cruise RMS (deg), when measured (absent in states written before it existed).
     #[serde(default)]
@@ -45,6 +77,24 @@ pub struct Evidence {
     pub decel_g: f64,
     /// Daemon odometer when the event finished (m).
     pub odometer_m: f64,
+    /// With a torque table: the event's band-passed torque RMS, peak and pre-brake RMS (N·m)
+    /// when the torque's estimator used it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub torque_nm: Option<TorqueEvidence>,
+}
+
+/// A number, or NaN where the state holds null (serde_json writes NaN as null).
+fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
+/// The torque features of one used event (N·m).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TorqueEvidence {
+    pub rms: f64,
+    pub peak: f64,
+    #[serde(default)]
+    pub cruise_rms: Option<f64>,
 }
 
 /// What [`ObserverStage`] saves in the daemon's state.
@@ -90,6 +140,15 @@ impl ObserverStage {
         })
     }
 
+    /// Adds the torsion-bar torque's response table ([`Observer::with_torque_table`]).
+    pub fn with_torque_table(mut self, table: Option<ResponseTable>) -> anyhow::Result<Self> {
+        if let Some(t) = table {
+            self.obs = self.obs.with_torque_table(t).context("torque table")?;
+            self.has_table = true;
+        }
+        Ok(self)
+    }
+
     /// The observer behind the stage (its report: events, rejections, its own estimate).
     pub fn observer(&self) -> &Observer {
         &self.obs
@@ -103,36 +162,71 @@ impl ObserverStage {
         // The observer finishes at most one event per pushed sample, so `last_event` is it.
         self.seen = n;
         let e = self.obs.last_event()?;
-        if let (true, Some(rms), Some(peak)) = (e.used, e.rms_sw_bp_deg, e.peak_sw_bp_deg) {
+        let torque_nm = e
+            .torque
+            .and_then(|t| match (t.used, t.rms_bp_nm, t.peak_bp_nm) {
+                (true, Some(rms), Some(peak)) => Some(TorqueEvidence {
+                    rms,
+                    peak,
+                    cruise_rms: t.cruise_rms_bp_nm,
+                }),
+                _ => None,
+            });
+        let angle = match (e.used, e.rms_sw_bp_deg, e.peak_sw_bp_deg) {
+            (true, Some(rms), Some(peak)) => Some((rms, peak)),
+            _ => None,
+        };
+        if angle.is_some() || torque_nm.is_some() {
+            // An event the torque used but the angle did not (its angle sensor is not the
+            // angle table's) keeps NaN angle features: replayed into the torque only.
+            let (rms_deg, peak_deg) = angle.unwrap_or((f64::NAN, f64::NAN));
             let ev = Evidence {
-                rms_deg: rms,
-                peak_deg: peak,
+                rms_deg,
+                peak_deg,
                 cruise_rms_deg: e.cruise_rms_sw_bp_deg,
                 v0_kmh: e.v0_kmh,
                 decel_g: e.decel_g,
                 // The daemon's odometer at the brake onset, as the observer's own estimator
                 // places the event: the same distances between events on both paths.
                 odometer_m: self.odometer_km * 1000.0 - self.obs.distance_since_last_event_m(),
+                torque_nm,
             };
             self.apply(&ev);
         }
         self.obs.last_event().map(summary)
     }
 
-    /// Adds one used event to the posterior and to the kept evidence.
+    /// Adds one used event to the posteriors (the angle's when its angle features are finite,
+    /// the torque's when it has torque features) and to the kept evidence.
     fn apply(&mut self, ev: &Evidence) {
-        let Some((est, table)) = self.obs.estimator_mut() else {
+        if !self.has_table {
             return;
-        };
-        est.update_event(
-            table,
-            ev.rms_deg,
-            ev.peak_deg,
-            ev.cruise_rms_deg,
-            ev.v0_kmh,
-            ev.decel_g,
-            ev.odometer_m,
-        );
+        }
+        if let (true, Some((est, table))) = (
+            ev.rms_deg.is_finite() && ev.peak_deg.is_finite(),
+            self.obs.estimator_mut(),
+        ) {
+            est.update_event(
+                table,
+                ev.rms_deg,
+                ev.peak_deg,
+                ev.cruise_rms_deg,
+                ev.v0_kmh,
+                ev.decel_g,
+                ev.odometer_m,
+            );
+        }
+        if let (Some(t), Some((est, table))) = (ev.torque_nm, self.obs.torque_estimator_mut()) {
+            est.update_event(
+                table,
+                t.rms,
+                t.peak,
+                t.cruise_rms,
+                ev.v0_kmh,
+                ev.decel_g,
+                ev.odometer_m,
+            );
+        }
         if self.evidence.len() >= MAX_EVIDENCE {
             self.evidence.pop_front();
             self.evidence_dropped += 1;
@@ -215,15 +309,14 @@ impl EventStage for ObserverStage {
         self.evidence.clear();
         self.evidence_dropped = saved.evidence_dropped;
         for ev in &saved.evidence {
-            if [
-                ev.rms_deg,
-                ev.peak_deg,
-                ev.v0_kmh,
-                ev.decel_g,
-                ev.odometer_m,
-            ]
-            .iter()
-            .all(|x| x.is_finite())
+            let angle_ok = ev.rms_deg.is_finite() && ev.peak_deg.is_finite();
+            let torque_ok = ev
+                .torque_nm
+                .is_some_and(|t| t.rms.is_finite() && t.peak.is_finite());
+            if (angle_ok || torque_ok)
+                && [ev.v0_kmh, ev.decel_g, ev.odometer_m]
+                    .iter()
+                    .all(|x| x.is_finite())
             {
                 self.apply(ev);
             } else {
@@ -244,7 +337,7 @@ impl EventStage for ObserverStage {
     }
 
     fn estimate(&self) -> Option<Estimate> {
-        let est = self.obs.estimator()?;
+        let est = self.obs.active_estimator()?;
         let s = est.summary();
         let used = s.events_used > 0;
         Some(Estimate {
@@ -277,6 +370,7 @@ mod tests {
                 accel_mps2: Some(if braking { -4.9 } else { 0.0 }),
                 brake: Some(braking),
                 steer_invalid: false,
+                torque_nm: None,
             };
             found += stage.push(&s).is_some() as usize;
         }

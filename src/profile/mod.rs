@@ -53,6 +53,13 @@ pub struct ProfileFile {
     /// braking events and the shimmy-amplitude alert, but estimates no clearance.
     #[serde(default)]
     pub table: Option<String>,
+    /// The response table of the EPS torsion-bar torque (`shimmy calibrate --signal torque`
+    /// on this chassis with its MODEL.md §15 column enabled), relative to the profile folder.
+    /// Where the bus carries a live torque the estimate comes from it (docs/ACCURACY.md: the
+    /// rim angle under the driver's hands cannot decide a worn joint, the torque can); the
+    /// angle table stays the fallback.
+    #[serde(default)]
+    pub torque_table: Option<String>,
     /// The bus description (firmware-sim and `shimmy identify`), relative to the folder.
     #[serde(default)]
     pub bus: Option<String>,
@@ -157,6 +164,7 @@ pub struct Profile {
     pub prior: NuisanceRanges,
     pub sensor: SensorModel,
     pub table_path: Option<PathBuf>,
+    pub torque_table_path: Option<PathBuf>,
     pub bus_path: Option<PathBuf>,
 }
 
@@ -330,6 +338,7 @@ impl Profile {
             .with_context(ctx)?;
         let opt = |f: &Option<String>| f.as_ref().map(|f| dir.join(f));
         let table_path = opt(&file.table);
+        let torque_table_path = opt(&file.torque_table);
         let bus_path = opt(&file.bus);
         for (key, p) in [("bus", &bus_path)] {
             if let Some(p) = p {
@@ -349,6 +358,7 @@ impl Profile {
             prior,
             sensor,
             table_path,
+            torque_table_path,
             bus_path,
             file,
         })
@@ -383,6 +393,58 @@ impl Profile {
         self.check_table(&t)
             .with_context(|| format!("profile {}: table {}", self.name, path.display()))?;
         Ok(Some(t))
+    }
+
+    /// The chassis a torque table is built on: this profile's with its MODEL.md §15 column
+    /// enabled (a torsion-bar torque needs the column).
+    pub fn column_vehicle(&self) -> VehicleParams {
+        let mut v = self.vehicle.clone();
+        v.column.enabled = true;
+        v
+    }
+
+    /// The profile's torque table ([`ProfileFile::torque_table`]), checked: a table of the
+    /// torque, built on [`Self::column_vehicle`] with the profile's prior, at the rate the
+    /// profile's `[sensors.steer_torque]` gives. `Ok(None)` when the profile names none, or
+    /// when its mapping maps no steering torque (nothing would feed it).
+    pub fn load_torque_table(&self) -> anyhow::Result<Option<ResponseTable>> {
+        let Some(path) = &self.torque_table_path else {
+            return Ok(None);
+        };
+        if self.mapping.steer_torque.is_none() {
+            return Ok(None);
+        }
+        let ctx = || format!("profile {}: torque table {}", self.name, path.display());
+        let t = ResponseTable::load(path).with_context(ctx)?;
+        self.check_torque_table(&t).with_context(ctx)?;
+        Ok(Some(t))
+    }
+
+    /// Refuses a torque table built for another chassis, prior or torque rate.
+    pub fn check_torque_table(&self, t: &ResponseTable) -> anyhow::Result<()> {
+        use crate::observer::features::SteerSignal;
+        if t.sensor.signal != SteerSignal::TorqueNm {
+            bail!("a table of the steering angle, not of the torque (`--signal torque`)");
+        }
+        t.check_vehicle(&vehicle_hash(&self.column_vehicle())?)
+            .context("a torque table is built on the profile's chassis with [column] enabled")?;
+        if let Some(ts) = &self.file.sensors.steer_torque {
+            if (t.sensor.rate_hz - ts.rate_hz).abs() > 0.05 * ts.rate_hz {
+                bail!(
+                    "built for a torque sensor of {} Hz, but the profile's sends at {} Hz",
+                    t.sensor.rate_hz,
+                    ts.rate_hz
+                );
+            }
+        }
+        if t.prior != self.prior {
+            bail!(
+                "built with the nuisance prior {:?}, but the profile's is {:?}",
+                t.prior,
+                self.prior
+            );
+        }
+        Ok(())
     }
 
     /// Refuses a table built for another chassis or sensor than this profile's.

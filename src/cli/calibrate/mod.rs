@@ -15,7 +15,7 @@ use crate::analysis::sweep::default_threads;
 use crate::events::median_in_place;
 use crate::model::VehicleParams;
 use crate::observer::emulate::{coords, draw_coords, emulate_cells, RawEvent, N_COORDS};
-use crate::observer::linear::{parse_terms, Term, DEFAULT_TERMS};
+use crate::observer::linear::{parse_terms, Term, COLUMN_TERMS, DEFAULT_TERMS};
 use crate::observer::sensor::SensorModel;
 use crate::observer::simulate::{perturb_vehicle, EventShape, NuisanceRanges};
 use crate::observer::table::{vehicle_hash, Cell, ResponseTable, FORMAT};
@@ -69,7 +69,7 @@ pub struct Args {
     /// Vehicle profiles to build the tables of (config/vehicles/<NAME>; "all" for every
     /// profile found): each table is written to the file its profile.toml names. Repeat or
     /// separate with commas.
-    #[arg(long, value_name = "NAME", value_delimiter = ',', conflicts_with_all = ["vehicle", "out", "refit", "events_in", "events_out", "exact_vehicle", "emulate"])]
+    #[arg(long, value_name = "NAME", value_delimiter = ',', conflicts_with_all = ["vehicle", "out", "refit", "events_in", "events_out", "exact_vehicle", "emulate", "signal"])]
     pub profile: Vec<String>,
 
     /// Vehicle parameters (TOML, MODEL.md §9 keys) of a custom build; default: MODEL.md §9.
@@ -146,20 +146,30 @@ pub struct Args {
     #[arg(long)]
     pub threads: Option<usize>,
 
-    /// The vehicle's steering angle sensor: sample rate (Hz). The table predicts what this
-    /// sensor reports (MODEL.md §8, src/observer/sensor.rs) and `shimmy estimate` does not use
-    /// events measured at another rate.
-    #[arg(long, default_value_t = SensorModel::default().rate_hz, value_name = "HZ")]
-    pub sensor_rate_hz: f64,
+    /// Which steering signal the table describes: `angle` (the steering-wheel angle) or
+    /// `torque` (the EPS torsion-bar torque, MODEL.md §15; the vehicle needs its [column]
+    /// enabled). A torque table goes beside a profile's angle table (`torque_table` in its
+    /// profile.toml); the observer then estimates from the torque where the bus carries it.
+    #[arg(long, default_value = "angle", value_parser = ["angle", "torque"])]
+    pub signal: String,
 
-    /// The steering angle sensor's quantisation step (deg): the signal's scale factor in the
-    /// DBC (0.1 on the reference bus). Events with another step are not used either.
-    #[arg(long, default_value_t = SensorModel::default().step_deg, value_name = "DEG")]
-    pub sensor_step_deg: f64,
+    /// The vehicle's steering sensor: sample rate (Hz; default 100 for the angle, 50 for the
+    /// torque). The table predicts what this sensor reports (MODEL.md §8,
+    /// src/observer/sensor.rs) and `shimmy estimate` does not use events measured at another
+    /// rate.
+    #[arg(long, value_name = "HZ")]
+    pub sensor_rate_hz: Option<f64>,
 
-    /// White noise of the steering angle sensor before quantisation (deg RMS).
-    #[arg(long, default_value_t = SensorModel::default().noise_deg, value_name = "DEG")]
-    pub sensor_noise_deg: f64,
+    /// The steering sensor's quantisation step (deg, or N·m for the torque; default 0.1 deg,
+    /// 0.01 N·m): the signal's scale factor in the DBC (0.1 on the reference bus). Events with
+    /// another step are not used either.
+    #[arg(long, value_name = "DEG")]
+    pub sensor_step_deg: Option<f64>,
+
+    /// White noise of the steering sensor before quantisation (deg RMS, or N·m for the torque;
+    /// default 0.01 deg, 0.02 N·m).
+    #[arg(long, value_name = "DEG")]
+    pub sensor_noise_deg: Option<f64>,
 
     /// No model runs: read this table (built by an earlier `shimmy calibrate` with per-vehicle
     /// means) and re-fit its cell means with the additive vehicle model (see --per-vehicle).
@@ -201,9 +211,10 @@ pub struct Args {
     pub events_in: Option<PathBuf>,
 
     /// Terms of the nuisance model (comma-separated monomials of d, the deceleration; x0-x6, the
-    /// nuisance coordinates k_s, c_s, k_t, k_g, c_g, unbalance, road noise; u, the cosine of the
-    /// wheels' unbalance phase difference), e.g. "1,d,x0,x1,x1^2,u,x5*u". The first must be
-    /// "1". See src/observer/linear.rs.
+    /// nuisance coordinates k_s, c_s, k_t, k_g, c_g, unbalance, road noise; x7-x9 the §15
+    /// column's J_sw, k_tb, c_tb; u, the cosine of the wheels' unbalance phase difference), e.g.
+    /// "1,d,x0,x1,x1^2,u,x5*u". The first must be "1". Default with `--signal torque`: these
+    /// and "x7,x8,x9,x1*x8". See src/observer/linear.rs.
     #[arg(long, default_value = DEFAULT_TERMS, value_name = "TERMS")]
     pub terms: String,
 
@@ -820,13 +831,26 @@ fn grid_from(args: &Args, ranges: NuisanceRanges) -> anyhow::Result<Grid> {
         } else {
             ranges
         },
-        terms: parse_terms(&args.terms).context("--terms")?,
+        // A torque table's default law adds the column's coordinates.
+        terms: if args.signal == "torque" && args.terms == DEFAULT_TERMS {
+            parse_terms(&format!("{DEFAULT_TERMS},{COLUMN_TERMS}"))
+        } else {
+            parse_terms(&args.terms)
+        }
+        .context("--terms")?,
         mixture_vehicles: args.mixture_vehicles,
-        sensor: SensorModel {
-            rate_hz: args.sensor_rate_hz,
-            step_deg: args.sensor_step_deg,
-            noise_deg: args.sensor_noise_deg,
-            ..SensorModel::default()
+        sensor: {
+            let base = if args.signal == "torque" {
+                SensorModel::TORQUE_RAV4
+            } else {
+                SensorModel::default()
+            };
+            SensorModel {
+                rate_hz: args.sensor_rate_hz.unwrap_or(base.rate_hz),
+                step_deg: args.sensor_step_deg.unwrap_or(base.step_deg),
+                noise_deg: args.sensor_noise_deg.unwrap_or(base.noise_deg),
+                ..base
+            }
         },
     };
     grid.sensor
