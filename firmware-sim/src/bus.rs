@@ -70,6 +70,10 @@ pub struct Sample {
     /// Torsion-bar torque (N·m), + when the rim is turned left of the pinion (the driver
     /// steering left): −T_c of MODEL.md §15, whose T_c is the torque the column puts on the rim.
     pub steer_torque_nm: f64,
+    /// Whether the plant has a torsion bar (the MODEL.md §15 column). Without one there is
+    /// nothing for a torque sensor to measure: it sends a steady 0, no noise, which the
+    /// observer takes for a bus without a live torque (it then estimates from the angle).
+    pub torsion_bar: bool,
 }
 
 impl Sample {
@@ -92,6 +96,7 @@ impl Sample {
             yaw_rate_rps: l(a.yaw_rate_rps, b.yaw_rate_rps),
             lat_accel_mps2: l(a.lat_accel_mps2, b.lat_accel_mps2),
             steer_torque_nm: l(a.steer_torque_nm, b.steer_torque_nm),
+            torsion_bar: b.torsion_bar,
         }
     }
 }
@@ -644,7 +649,15 @@ impl Bus {
             Quantity::LongAccelMps2 => s.accel_mps2 + n(sn.accel_noise_mps2),
             Quantity::LatAccelMps2 => s.lat_accel_mps2 + n(sn.accel_noise_mps2),
             Quantity::YawRateDegS => s.yaw_rate_rps.to_degrees() + n(sn.yaw_rate_noise_deg_s),
-            Quantity::SteerTorqueNm => s.steer_torque_nm + n(sn.steer_torque_noise_nm),
+            Quantity::SteerTorqueNm => {
+                // Drawn either way, so the other signals' noise is the same with or without.
+                let noise = n(sn.steer_torque_noise_nm);
+                if s.torsion_bar {
+                    s.steer_torque_nm + noise
+                } else {
+                    0.0
+                }
+            }
             // Constants are per field (`Field::value`), never asked for here.
             Quantity::Constant => 0.0,
         }

@@ -42,6 +42,7 @@ use shimmy::model::VehicleParams;
 use shimmy::observer::simulate::{perturb, HandsPrior, NuisanceRanges};
 use shimmy::observer::table::{vehicle_hash, ResponseTable};
 use shimmy::observer::ObserverConfig;
+use shimmy::pipeline::Tables;
 use shimmy::profile::bus::BusSpec;
 use shimmy::profile::Profile;
 
@@ -66,6 +67,15 @@ pub struct FleetArgs {
     /// profile's table.
     #[arg(long, value_name = "FILE")]
     pub table: Option<PathBuf>,
+    /// Response table of the EPS torsion-bar torque (`shimmy calibrate --signal torque`, on
+    /// the nominal vehicle with its §15 column enabled). Default with --profile: the
+    /// profile's `torque_table` when its mapping maps the torque. Events with a live torque
+    /// are then estimated from it (`shimmy estimate`'s rule).
+    #[arg(long, value_name = "FILE", conflicts_with = "angle_only")]
+    pub torque_table: Option<PathBuf>,
+    /// Estimate from the steering angle alone (no torque table).
+    #[arg(long)]
+    pub angle_only: bool,
     /// A vehicle profile (name, alias or folder; config/vehicles/): its bus (DBC and bus.toml)
     /// goes on the wire, its chassis is the nominal vehicle, its mapping decodes and its table
     /// estimates, each unless --dbc, --vehicle, --mapping or --table says otherwise.
@@ -316,6 +326,10 @@ pub struct VehicleResult {
     pub events_true: usize,
     pub events_recorded: usize,
     pub events_used: u32,
+    /// With a torque table: the signal the estimate came from and the events the torque's
+    /// estimator used.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub signals: Option<shimmy::observer::SignalUse>,
     pub seconds: f64,
 }
 
@@ -553,7 +567,7 @@ fn one_vehicle(
     args: &FleetArgs,
     setup: &Setup,
     dir: &Path,
-    table: &ResponseTable,
+    tables: &Tables,
     cfg: &ObserverConfig,
 ) -> anyhow::Result<VehicleResult> {
     let t0 = Instant::now();
@@ -563,7 +577,7 @@ fn one_vehicle(
     let (report, _) = estimate_files(
         &setup.mapping,
         setup.dbc_path.as_deref(),
-        Some(table.clone()),
+        tables.clone(),
         cfg.clone(),
         std::slice::from_ref(&log),
     )
@@ -614,6 +628,7 @@ fn result(
         events_true: n_true,
         events_recorded: r.events.len(),
         events_used: r.events_used,
+        signals: r.signals,
         seconds: t0.elapsed().as_secs_f64(),
     }
 }
@@ -750,6 +765,35 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
             ),
             (None, None) => "the fleet's nominal vehicle is MODEL.md §9 (--vehicle)".into(),
         })?;
+    let torque = match (&args.torque_table, &setup.profile) {
+        _ if args.angle_only => None,
+        (Some(p), _) => {
+            let t = ResponseTable::load(p)?;
+            let ctx = || format!("torque table {}", p.display());
+            match (&args.vehicle, &setup.profile) {
+                (None, Some(prof)) => prof.check_torque_table(&t).with_context(ctx)?,
+                _ => {
+                    let mut v = nominal.params.clone();
+                    v.column.enabled = true;
+                    t.check_vehicle(&vehicle_hash(&v)?).with_context(ctx)?;
+                }
+            }
+            Some(t)
+        }
+        (None, Some(p)) => p.load_torque_table()?,
+        (None, None) => None,
+    };
+    if let Some(t) = &torque {
+        eprintln!(
+            "fleet: torque table at {} Hz: events with a live steering torque are estimated \
+             from it",
+            t.sensor.rate_hz
+        );
+    }
+    let tables = Tables {
+        angle: Some(table),
+        torque,
+    };
     let cfg = match &args.config {
         Some(p) => ObserverConfig::load(p)?,
         None => ObserverConfig::default(),
@@ -791,7 +835,7 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let results = par_map(&ks, threads, |&k| {
-        let r = one_vehicle(k, &args, &setup, &dir, &table, &cfg);
+        let r = one_vehicle(k, &args, &setup, &dir, &tables, &cfg);
         if let Ok(v) = &r {
             eprintln!(
                 "vehicle {:>3}: c = {:.3} mm -> {} [{}] alerts: clearance {} shimmy {} ({} events used, {:.0} s)",
@@ -1194,6 +1238,7 @@ mod tests {
             events_true: 30,
             events_recorded: 30,
             events_used: 30,
+            signals: None,
             seconds: 0.0,
         };
         let fleet = [

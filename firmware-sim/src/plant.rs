@@ -68,6 +68,10 @@ pub trait Plant {
     fn column_torque_nm(&self) -> f64 {
         0.0
     }
+    /// Whether the plant has the §15 column's torsion bar (its torque is measured).
+    fn has_torsion_bar(&self) -> bool {
+        false
+    }
     /// Overall steering ratio i_s (steering-wheel angle per road-wheel angle, MODEL.md §8), for
     /// the kinematic yaw rate. Default: MODEL.md §9's vehicle.
     fn steering_ratio(&self) -> f64 {
@@ -342,13 +346,10 @@ impl Plant for ModelPlant {
     /// T_c = k_c·(X/r_p − δ_sw) + c_tb·(X'/r_p − δ_sw') (MODEL.md §15) from the state, when the
     /// vehicle's column is enabled; 0 otherwise.
     fn column_torque_nm(&self) -> f64 {
-        use shimmy::model::rhs::ix;
-        let m = self.sim.model();
-        if !m.column {
-            return 0.0;
-        }
-        let y = self.sim.state();
-        m.k_c * (y[ix::X] / m.r_p - y[ix::SW]) + m.c_tb * (y[ix::XD] / m.r_p - y[ix::SWD])
+        -self.sim.model().driver_torque_nm(self.sim.state())
+    }
+    fn has_torsion_bar(&self) -> bool {
+        self.sim.model().column
     }
     fn steering_ratio(&self) -> f64 {
         self.steering_ratio

@@ -280,6 +280,7 @@ impl<P: Plant> FirmwareSim<P> {
             yaw_rate_rps,
             lat_accel_mps2: speed_mps * yaw_rate_rps,
             steer_torque_nm: -self.plant.column_torque_nm(),
+            torsion_bar: self.plant.has_torsion_bar(),
         }
     }
 

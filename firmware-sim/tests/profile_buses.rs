@@ -32,8 +32,9 @@ use shimmy::profile::bus::{BusSpec, Quantity};
 use shimmy::profile::Profile;
 
 /// The profiles shipped in config/vehicles.
-const SHIPPED: [&str; 5] = [
+const SHIPPED: [&str; 6] = [
     "shimmy_reference",
+    "shimmy_reference_eps",
     "toyota_rav4",
     "vw_mqb",
     "honda_civic",
@@ -100,7 +101,7 @@ fn repo(rel: &str) -> PathBuf {
 
 /// The profile, or `None` (after a SKIPPED notice) when its DBC is in the absent shared data.
 fn profile(name: &str) -> Option<Profile> {
-    if name != "shimmy_reference"
+    if !name.starts_with("shimmy_reference")
         && shimmy::shared_data::require(&format!("the {name} bus (opendbc DBC)")).is_none()
     {
         return None;
@@ -456,6 +457,11 @@ fn reference_bus_end_to_end() {
 }
 
 #[test]
+fn reference_eps_bus_end_to_end() {
+    end_to_end("shimmy_reference_eps");
+}
+
+#[test]
 fn vw_mqb_bus_end_to_end() {
     end_to_end("vw_mqb");
 }
@@ -659,6 +665,7 @@ fn polling_a_profile_bus_allocates_nothing() {
                 yaw_rate_rps: 0.01,
                 lat_accel_mps2: -0.2,
                 steer_torque_nm: 0.3 * (3.0 * t).sin(),
+                torsion_bar: true,
             };
             out.clear();
             bus.poll(&s, &mut out);
@@ -740,8 +747,8 @@ fn a_fleet_runs_on_a_profiles_bus() {
 }
 
 /// The steering torque on the bus is the plant's: −T_c of MODEL.md §15 when the vehicle's column
-/// is enabled (here on the VW, whose LH_EPS_03 carries it in centi-N·m as magnitude and sign),
-/// and only sensor noise without the column.
+/// is enabled (here on the VW, whose LH_EPS_03 carries it in centi-N·m as magnitude and sign)
+/// with the sensor's noise, and a steady 0 without the column.
 #[test]
 fn the_column_torque_reaches_the_bus() {
     let Some(mut p) = profile("vw_mqb") else {
@@ -766,14 +773,18 @@ fn the_column_torque_reaches_the_bus() {
     };
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
 
+    // Without the column there is no torsion bar: a steady 0, no noise (the observer takes a
+    // constant torque for none and estimates from the angle).
     let off = torque(&drive(p.clone()));
-    assert!(off.iter().all(|&(_, want)| want == 0.0));
-    // 0.02 N·m noise, 0.01 N·m steps.
-    let r = rms(&off.iter().map(|x| x.0).collect::<Vec<_>>());
-    assert!(r > 0.01 && r < 0.04, "no column: rms {r} N·m");
+    assert!(!off.is_empty());
+    assert!(off.iter().all(|&(got, want)| want == 0.0 && got == 0.0));
 
     p.vehicle.column.enabled = true;
     let on = torque(&drive(p.clone()));
+    // 0.02 N·m noise, 0.01 N·m steps on top of the plant's torque.
+    let noise = on.iter().map(|x| x.0 - x.1).collect::<Vec<_>>();
+    let r = rms(&noise);
+    assert!(r > 0.01 && r < 0.04, "column: noise rms {r} N·m");
     // §15's T_c: about 0.1 N·m of shimmy while braking at 0.2 mm, little in between.
     let peak = on.iter().map(|x| x.1.abs()).fold(0.0, f64::max);
     assert!(peak > 0.05, "column: plant torque peak {peak} N·m");
