@@ -9,7 +9,7 @@ mod e2e_common;
 use std::path::Path;
 use std::process::Command;
 
-use e2e_common::{estimate_reference, firmware_sim, replay_reference, workspace};
+use e2e_common::{estimate_profile, firmware_sim, replay_profile, workspace};
 use serde_json::Value;
 
 /// Equal numbers to `rel` of the larger (or equal JSON where not numbers).
@@ -30,8 +30,13 @@ const EVENT_REL: f64 = 1e-9;
 const ESTIMATE_REL: f64 = 1e-9;
 
 fn compare(log: &Path, dir: &Path) {
-    let e = estimate_reference(log, None);
-    let j = replay_reference(log, dir, None);
+    compare_on("shimmy_reference", log, dir);
+}
+
+/// [`compare`] on the vehicle profile `profile`; returns `estimate`'s report.
+fn compare_on(profile: &str, log: &Path, dir: &Path) -> Value {
+    let e = estimate_profile(profile, log, None);
+    let j = replay_profile(profile, log, dir, None);
     let what = log.display();
     let ev = e["events"].as_array().unwrap();
     assert_eq!(ev.len(), j.events.len(), "{what}: events");
@@ -83,6 +88,7 @@ fn compare(log: &Path, dir: &Path) {
         .collect();
     kinds.sort();
     assert_eq!(kinds, j.kinds_standing(), "{what}: alerts at the end");
+    e
 }
 
 #[test]
@@ -94,25 +100,29 @@ fn the_demo_fixture_gives_the_same_events_estimate_and_alerts() {
     );
 }
 
-#[test]
-fn a_fleet_of_ten_gives_the_same_events_estimate_and_alerts_on_every_vehicle() {
-    let dir = tempfile::tempdir().unwrap();
-    let logs = dir.path().join("fleet");
+/// `firmware-sim fleet --logs-only` of `vehicles` × `events` from `seed` on `profile`, plus
+/// `extra` arguments; the logs' directory.
+fn fleet_logs(
+    dir: &Path,
+    profile: &str,
+    vehicles: u32,
+    events: u32,
+    seed: u64,
+    extra: &[&std::ffi::OsStr],
+) -> std::path::PathBuf {
+    let logs = dir.join("fleet");
     let out = Command::new(firmware_sim())
         .current_dir(workspace())
+        .args(["fleet", "--profile", profile, "--logs-only"])
         .args([
-            "fleet",
-            "--profile",
-            "shimmy_reference",
             "--vehicles",
-            "10",
+            &vehicles.to_string(),
             "--events",
-            "5",
-            "--seed-base",
-            "77000",
-            "--logs-only",
-            "--work-dir",
+            &events.to_string(),
         ])
+        .args(["--seed-base", &seed.to_string()])
+        .args(extra)
+        .arg("--work-dir")
         .arg(&logs)
         .output()
         .unwrap();
@@ -121,8 +131,43 @@ fn a_fleet_of_ten_gives_the_same_events_estimate_and_alerts_on_every_vehicle() {
         "firmware-sim fleet: {}",
         String::from_utf8_lossy(&out.stderr)
     );
+    logs
+}
+
+#[test]
+fn a_fleet_of_ten_gives_the_same_events_estimate_and_alerts_on_every_vehicle() {
+    let dir = tempfile::tempdir().unwrap();
+    let logs = fleet_logs(dir.path(), "shimmy_reference", 10, 5, 77000, &[]);
     for k in 0..10 {
         let log = logs.join(format!("fleet_{}.log", 77000 + k));
         compare(&log, &dir.path().join(format!("run{k}")));
+    }
+}
+
+/// With a torque table (the reference bus with an EPS torque, vehicles with the MODEL.md §15
+/// column): both estimate from the torque, and agree.
+#[test]
+fn vehicles_with_a_steering_column_give_the_same_torque_estimate() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(workspace().join("config/vehicle/default.toml")).unwrap();
+    let (head, tail) = text.split_once("[column]").unwrap();
+    let plant = dir.path().join("column.toml");
+    let tail = tail.replacen("enabled = false", "enabled = true", 1);
+    std::fs::write(&plant, format!("{head}[column]{tail}")).unwrap();
+    let extra = ["--plant".as_ref(), plant.as_os_str()];
+    let logs = fleet_logs(dir.path(), "shimmy_reference_eps", 3, 6, 77100, &extra);
+    for k in 0..3 {
+        let log = logs.join(format!("fleet_{}.log", 77100 + k));
+        let e = compare_on(
+            "shimmy_reference_eps",
+            &log,
+            &dir.path().join(format!("run{k}")),
+        );
+        assert_eq!(
+            e["signals"]["estimate_from"],
+            "torque_nm",
+            "{}",
+            log.display()
+        );
     }
 }

@@ -166,6 +166,15 @@ const FIRMWARE_SIM: &[(&str, &[&str])] = &[
         &["--scenario", "config/scenarios/worn_0p2mm.toml"],
     ),
     (
+        "shimmy_reference_eps",
+        &[
+            "--scenario",
+            "config/scenarios/worn_0p2mm.toml",
+            "--profile",
+            "shimmy_reference_eps",
+        ],
+    ),
+    (
         "toyota_rav4",
         &[
             "--scenario",

@@ -403,3 +403,58 @@ fn the_cruise_feature_measures_the_steering_before_the_brake_only() {
     );
     assert_eq!(short.cruise_rms_deg, None, "{short:?}");
 }
+
+/// The steering torque travels beside the angle: samples of a 50 Hz torque (a 10 Hz shake of
+/// 0.2 N·m while braking) come out of the finished event over the pre-roll and window, and its
+/// features, in N·m on the 3–20 Hz band a 50 Hz signal can carry, read the shake.
+#[test]
+fn the_steering_torque_is_kept_with_the_event_and_measured_in_newton_metres() {
+    use shimmy::observer::features::{band_hz, SteerSignal};
+    let mut det = Detector::new(EventConfig::default());
+    let mut ex = Extractor::new();
+    let mut found = None;
+    for (k, mut s) in samples(&Drive::default()).into_iter().enumerate() {
+        // The angle comes every 10 ms; a torque with every other one (50 Hz).
+        if s.steer_rad.is_some() && k % 2 == 0 {
+            let t = s.t_ns as f64 * 1e-9;
+            let braking = s.brake == Some(true);
+            s.torque_nm = Some(if braking { 0.2 } else { 0.0 } * (2.0 * 3.14159 * 10.0 * t).sin());
+        }
+        if let Some(f) = det.push(&s) {
+            let rec = f.record.clone();
+            let torque = f.torque.to_vec();
+            let t0 = (rec.t_start_s * 1e9) as i64;
+            let t1 = ((rec.t_end_s + 0.3) * 1e9) as i64;
+            let feats = ex
+                .extract_signal(
+                    SteerSignal::TorqueNm,
+                    &torque,
+                    t0,
+                    t1,
+                    SensorNoise {
+                        quant_step_deg: 0.01,
+                        noise_deg: 0.0,
+                    },
+                    0.01,
+                )
+                .unwrap();
+            found = Some((rec, torque, feats));
+        }
+    }
+    let (rec, torque, feats) = found.expect("one event");
+    assert!(rec.used, "{rec:#?}");
+    // Pre-roll before the onset, samples to the end of the tail.
+    assert!(torque.first().unwrap().0 < (rec.t_start_s * 1e9) as i64 - 1_000_000_000);
+    assert!(torque.last().unwrap().0 >= (rec.t_end_s * 1e9) as i64);
+    assert!((feats.fs_hz - 50.0).abs() < 1.0, "{feats:?}");
+    let (lo, hi) = band_hz(feats.fs_hz);
+    assert!(lo == 3.0 && (hi - 20.0).abs() < 0.5, "{:?}", (lo, hi));
+    // A 0.2 N·m sine: RMS 0.14 N·m, peak 0.2 N·m (not degrees of a radian signal).
+    assert!(
+        (feats.rms_deg - 0.2 / 2f64.sqrt()).abs() < 0.03,
+        "{feats:?}"
+    );
+    assert!((feats.peak_deg - 0.2).abs() < 0.04, "{feats:?}");
+    // The cruise before the brake carried no torque.
+    assert!(feats.cruise_rms_deg.unwrap() < 0.01, "{feats:?}");
+}

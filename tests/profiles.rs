@@ -5,8 +5,9 @@ use shimmy::dbc::Database;
 use shimmy::profile::{self, Profile};
 use shimmy::signals::Mapper;
 
-const SHIPPED: [&str; 5] = [
+const SHIPPED: [&str; 6] = [
     "shimmy_reference",
+    "shimmy_reference_eps",
     "toyota_rav4",
     "vw_mqb",
     "honda_civic",
@@ -22,7 +23,7 @@ fn every_shipped_profile_loads_and_its_mapping_fits_its_dbc() {
     // The opendbc DBCs live in the shared data; without it only the reference profile loads.
     let have_data = shimmy::shared_data::require("the opendbc DBCs of the profiles").is_some();
     for name in SHIPPED {
-        if !have_data && name != "shimmy_reference" {
+        if !have_data && !name.starts_with("shimmy_reference") {
             continue;
         }
         let p = Profile::load_dir(&repo(&format!("config/vehicles/{name}")))
@@ -38,7 +39,52 @@ fn every_shipped_profile_loads_and_its_mapping_fits_its_dbc() {
             .unwrap_or_else(|e| panic!("{name}: {e:#}"))
             .unwrap_or_else(|| panic!("{name}: no table"));
         assert_eq!(t.sensor, p.sensor, "{name}");
+        // A profile naming a torque table ships it, built for the torque its bus sends.
+        if p.file.torque_table.is_some() {
+            assert!(
+                p.mapping.steer_torque.is_some(),
+                "{name}: torque table, no torque"
+            );
+            let tt = p
+                .load_torque_table()
+                .unwrap_or_else(|e| panic!("{name}: {e:#}"))
+                .unwrap_or_else(|| panic!("{name}: no torque table"));
+            let sent = p
+                .file
+                .sensors
+                .steer_torque
+                .as_ref()
+                .expect("[sensors.steer_torque]");
+            assert_eq!(tt.sensor.rate_hz, sent.rate_hz, "{name}");
+            assert_eq!(tt.clearance_mm, t.clearance_mm, "{name}");
+        }
     }
+}
+
+/// A torque table is refused where it does not belong: as an angle table, for a chassis
+/// without the column's hash, or for a torque sent at another rate.
+#[test]
+fn a_torque_table_is_checked_against_the_profiles_torque() {
+    let p = Profile::load("shimmy_reference_eps").unwrap();
+    let t = p.load_torque_table().unwrap().expect("shipped");
+    p.check_torque_table(&t).unwrap();
+    let e = format!("{:#}", p.check_table(&t).unwrap_err());
+    assert!(e.contains("hash") || e.contains("vehicle"), "{e}");
+    let angle = p.load_table().unwrap().unwrap();
+    let e = format!("{:#}", p.check_torque_table(&angle).unwrap_err());
+    assert!(e.contains("not of the torque"), "{e}");
+    let mut slow = p.clone();
+    slow.file.sensors.steer_torque.as_mut().unwrap().rate_hz = 50.0;
+    let e = format!("{:#}", slow.check_torque_table(&t).unwrap_err());
+    assert!(e.contains("50 Hz"), "{e}");
+    let mut other = p.clone();
+    other.vehicle.steering.kingpin_stiffness_nm_per_rad *= 1.5;
+    let e = format!("{:#}", other.check_torque_table(&t).unwrap_err());
+    assert!(e.contains("[column] enabled"), "{e}");
+    // A profile whose mapping maps no torque loads no torque table: nothing would feed it.
+    let mut none = p.clone();
+    none.mapping.steer_torque = None;
+    assert!(none.load_torque_table().unwrap().is_none());
 }
 
 #[test]

@@ -163,9 +163,14 @@ pub fn write_config(dir: &Path, input: &str) -> PathBuf {
 /// `shimmy estimate --profile shimmy_reference [--config SETTINGS] LOG`, its JSON; panics
 /// unless it exits 0.
 pub fn estimate_reference(log: &Path, settings: Option<&Path>) -> Value {
+    estimate_profile("shimmy_reference", log, settings)
+}
+
+/// [`estimate_reference`] with the vehicle profile `profile`.
+pub fn estimate_profile(profile: &str, log: &Path, settings: Option<&Path>) -> Value {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_shimmy"));
     cmd.current_dir(workspace())
-        .args(["estimate", "--profile", "shimmy_reference"]);
+        .args(["estimate", "--profile", profile]);
     if let Some(s) = settings {
         cmd.arg("--config").arg(s);
     }
@@ -182,6 +187,11 @@ pub fn estimate_reference(log: &Path, settings: Option<&Path>) -> Value {
 /// `shimmyd --replay LOG --fast` with the reference profile and nothing else configured but
 /// the monitor's settings file `settings` when given; its journal (under `dir`).
 pub fn replay_reference(log: &Path, dir: &Path, settings: Option<&Path>) -> Journal {
+    replay_profile("shimmy_reference", log, dir, settings)
+}
+
+/// [`replay_reference`] with the vehicle profile `profile`.
+pub fn replay_profile(profile: &str, log: &Path, dir: &Path, settings: Option<&Path>) -> Journal {
     std::fs::create_dir_all(dir).unwrap();
     let cfg = dir.join("shimmyd.toml");
     let monitor = settings.map_or(String::new(), |s| {
@@ -190,7 +200,7 @@ pub fn replay_reference(log: &Path, dir: &Path, settings: Option<&Path>) -> Jour
     std::fs::write(
         &cfg,
         format!(
-            "{monitor}[input]\nprofile = \"shimmy_reference\"\n\
+            "{monitor}[input]\nprofile = \"{profile}\"\n\
              [outputs]\njournal_dir = \"journal\"\nstate_dir = \"state\"\n"
         ),
     )
