@@ -769,15 +769,14 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
         _ if args.angle_only => None,
         (Some(p), _) => {
             let t = ResponseTable::load(p)?;
+            // As --table: built for the nominal vehicle (with its column), whatever the prior.
             let ctx = || format!("torque table {}", p.display());
-            match (&args.vehicle, &setup.profile) {
-                (None, Some(prof)) => prof.check_torque_table(&t).with_context(ctx)?,
-                _ => {
-                    let mut v = nominal.params.clone();
-                    v.column.enabled = true;
-                    t.check_vehicle(&vehicle_hash(&v)?).with_context(ctx)?;
-                }
+            if t.sensor.signal != shimmy::observer::features::SteerSignal::TorqueNm {
+                anyhow::bail!("{}: a table of the steering angle, not the torque", ctx());
             }
+            let mut v = nominal.params.clone();
+            v.column.enabled = true;
+            t.check_vehicle(&vehicle_hash(&v)?).with_context(ctx)?;
             Some(t)
         }
         (None, Some(p)) => p.load_torque_table()?,

@@ -265,6 +265,8 @@ fn estimate_args(logs: Vec<PathBuf>, profile: String, config: Option<PathBuf>) -
         dbc: None,
         vehicle: None,
         table: None,
+        torque_table: None,
+        angle_only: false,
         config,
         format: TextOrJson::Json,
         logs,

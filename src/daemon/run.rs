@@ -576,6 +576,13 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
     if let Some(j) = &opts.journal_dir {
         cfg.outputs.journal_dir = j.clone();
     }
+    if let Some(t) = &cfg.vehicle.torque_table {
+        log(format_args!(
+            "torque table {}: the estimate comes from the steering torque where the bus carries \
+             a live one, from the angle otherwise",
+            t.display()
+        ));
+    }
     if let Some(p) = &cfg.profile {
         log(format_args!("vehicle profile: {}", p.label()));
         if let Some(t) = p.table_path.as_ref().filter(|t| !t.is_file()) {
