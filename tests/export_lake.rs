@@ -538,3 +538,85 @@ fn signal_files_are_named_by_the_sha256_of_the_log_file_in_every_format() {
         );
     }
 }
+
+/// A car with the MODEL.md §15 column on the reference bus with an EPS torque: the lake's
+/// events carry the torque's peak and use as `estimate` reports them, and every row names the
+/// torque table it was estimated with.
+#[test]
+fn a_drive_with_a_torque_exports_the_torque_and_its_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let ws = e2e_common::workspace();
+    let text = std::fs::read_to_string(ws.join("config/vehicle/default.toml")).unwrap();
+    let (head, tail) = text.split_once("[column]").unwrap();
+    let vehicle = dir.path().join("column.toml");
+    let tail = tail.replacen("enabled = false", "enabled = true", 1);
+    std::fs::write(&vehicle, format!("{head}[column]{tail}")).unwrap();
+    let scenario = std::fs::read_to_string(ws.join("config/scenarios/worn_0p2mm.toml")).unwrap();
+    let scenario = scenario.replacen(
+        "seed = 20\n",
+        &format!("seed = 20\nvehicle = {:?}\n", vehicle.display().to_string()),
+        1,
+    );
+    let sc = dir.path().join("column_worn.toml");
+    std::fs::write(&sc, scenario).unwrap();
+    let log = dir.path().join("column_worn.log");
+    let out = Command::new(e2e_common::firmware_sim())
+        .args(["--profile", "shimmy_reference_eps", "--scenario"])
+        .arg(&sc)
+        .arg("--out")
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+
+    let lake = dir.path().join("lake");
+    let out = export("shimmy_reference_eps", "eps-1", &lake, &[&log]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let files = snapshot(&lake);
+    let est = estimate_json("shimmy_reference_eps", &log);
+    assert_eq!(est["signals"]["estimate_from"], "torque_nm", "{est}");
+    let want: Vec<(Option<f64>, Option<bool>)> = est["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| {
+            (
+                json_f64(&e["torque"]["peak_bp_nm"]),
+                e["torque"]["used"].as_bool(),
+            )
+        })
+        .collect();
+    assert!(want.iter().any(|w| w.1 == Some(true)), "{want:?}");
+    let mut got = Vec::new();
+    let torque_sha = sha256_hex(&ws.join("config/vehicles/shimmy_reference_eps/table_torque.json"));
+    for b in read_all(&lake, &files, "events") {
+        let peak = f64s(&b, "peak_torque_bp_nm");
+        let used = b
+            .column_by_name("torque_used")
+            .unwrap()
+            .as_boolean()
+            .clone();
+        for i in 0..b.num_rows() {
+            got.push((peak[i], (!used.is_null(i)).then(|| used.value(i))));
+        }
+        assert!(strs(&b, "torque_table_sha256")
+            .iter()
+            .all(|s| s.as_deref() == Some(torque_sha.as_str())));
+    }
+    assert_eq!(got.len(), want.len());
+    for (g, w) in got.iter().zip(&want) {
+        assert_eq!(g.1, w.1);
+        match (g.0, w.0) {
+            (Some(a), Some(b)) => assert!((a - b).abs() <= 1e-9 * b.abs().max(1e-6), "{a} {b}"),
+            (a, b) => assert_eq!(a, b),
+        }
+    }
+}

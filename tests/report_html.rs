@@ -66,6 +66,7 @@ impl BrakeDouble {
             used: true,
             unused_reason: None,
             odometer_km: 0.0,
+            ..Default::default()
         })
     }
 }

@@ -225,6 +225,8 @@ def _empty_events():
             ("used", pa.bool_()),
             ("unused_reason", pa.string()),
             ("odometer_km", f64),
+            ("peak_torque_bp_nm", f64),
+            ("torque_used", pa.bool_()),
             ("log_sha256", pa.string()),
             ("run_sha256", pa.string()),
             ("model_version", pa.string()),

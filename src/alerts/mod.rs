@@ -340,6 +340,7 @@ mod tests {
             used: true,
             unused_reason: None,
             odometer_km: t / 100.0,
+            ..Default::default()
         }
     }
 

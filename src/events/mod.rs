@@ -11,7 +11,8 @@
 //! ahead). Events outside that range are still recorded, flagged `used = false` with the reason.
 //!
 //! Memory is bounded and fixed at construction: the steering samples live in a preallocated
-//! ring ([`EventConfig::max_samples`]), the deceleration samples in another, the speed
+//! ring ([`EventConfig::max_samples`]), the steering torque's (where the bus carries one) in a
+//! second of the same size, the deceleration samples in another, the speed
 //! differentiator in a `heapless` ring. Nothing allocates per sample.
 //!
 //! What it is not: a feature extractor (that is [`crate::observer::features`]) or a clearance

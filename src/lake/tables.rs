@@ -72,6 +72,8 @@ pub fn events_schema() -> SchemaRef {
         Field::new("used", DataType::Boolean, false),
         Field::new("unused_reason", DataType::Utf8, true),
         f64v("odometer_km"),
+        f64n("peak_torque_bp_nm"),
+        Field::new("torque_used", DataType::Boolean, true),
     ];
     f.extend(stamp_fields());
     Arc::new(Schema::new(f))
@@ -207,6 +209,7 @@ fn events_batch(rows: &[&Finished], stamp: &Stamp) -> anyhow::Result<Option<Reco
         StringBuilder::new(),
         Float64Builder::new(),
     );
+    let (mut tq_peak, mut tq_used) = (Float64Builder::new(), BooleanBuilder::new());
     for f in rows {
         let e = &f.event;
         t.append_value(micros(e.t_end));
@@ -219,6 +222,8 @@ fn events_batch(rows: &[&Finished], stamp: &Stamp) -> anyhow::Result<Option<Reco
         used.append_value(e.used);
         why.append_option(e.unused_reason.as_deref());
         odo.append_value(e.odometer_km);
+        tq_peak.append_option(e.peak_torque_bp_nm);
+        tq_used.append_option(e.torque_used);
     }
     let cols: Vec<ArrayRef> = vec![
         Arc::new(t.finish()),
@@ -231,6 +236,8 @@ fn events_batch(rows: &[&Finished], stamp: &Stamp) -> anyhow::Result<Option<Reco
         Arc::new(used.finish()),
         Arc::new(why.finish()),
         Arc::new(odo.finish()),
+        Arc::new(tq_peak.finish()),
+        Arc::new(tq_used.finish()),
     ];
     finish(events_schema(), cols, stamp, rows.len())
 }

@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 pub use crate::events::Sample;
 
 /// One finished braking event as the journal, the alerts and the report see it.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct EventSummary {
     /// Brake onset / end, log time (s since the Unix epoch for live and candump logs).
     pub t_start: f64,
@@ -40,6 +40,12 @@ pub struct EventSummary {
     /// (`crate::pipeline::SpeedIntegrator`; shimmyd's persists across restarts).
     #[serde(default)]
     pub odometer_km: f64,
+    /// With a torque table: the peak of the band-passed torsion-bar torque (N·m) and whether
+    /// the torque's estimator used the event (absent without a torque table).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub peak_torque_bp_nm: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub torque_used: Option<bool>,
 }
 
 /// The observer's clearance estimate.

@@ -11,7 +11,10 @@
 //! | `checks` | [`ObserverConfig::validate`]: the ranges and orderings serde cannot express, for every command |
 //!
 //! [`Observer`] wires them to [`crate::events::Detector`]: feed it [`Sample`]s, read a
-//! [`Report`]. What it is not: CAN decoding (that is [`crate::signals`]), the model, or the
+//! [`Report`]. With a table of the EPS torsion-bar torque ([`Observer::with_torque_table`]) it
+//! keeps a second estimator on the torque's features (MODEL.md §15: the torque sees the pinion
+//! turn against the rim, whatever the driver's hands do to the rim), and reports from it once
+//! an event with a live torque was used. What it is not: CAN decoding (that is [`crate::signals`]), the model, or the
 //! alert rules: it raises no alert. The alerts of `shimmy estimate` and shimmyd are decided by
 //! `crate::alerts::AlertBook` after each finished event, on the estimate the monitor pipeline
 //! (`crate::pipeline`) reads from this observer; the report's

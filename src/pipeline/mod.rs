@@ -328,6 +328,7 @@ mod tests {
                 used: true,
                 unused_reason: None,
                 odometer_km: -1.0,
+                ..Default::default()
             })
         }
         fn finish(&mut self) -> Option<EventSummary> {

@@ -250,6 +250,8 @@ fn summary(e: &EventOut) -> EventSummary {
             .and_then(|v| v.as_str().map(str::to_owned)),
         // Filled in by the pipeline from its odometer (`super::finish_event`).
         odometer_km: 0.0,
+        peak_torque_bp_nm: e.torque.and_then(|t| t.peak_bp_nm),
+        torque_used: e.torque.map(|t| t.used),
     }
 }
 
