@@ -149,11 +149,7 @@ fn a_fleet_of_ten_gives_the_same_events_estimate_and_alerts_on_every_vehicle() {
 #[test]
 fn vehicles_with_a_steering_column_give_the_same_torque_estimate() {
     let dir = tempfile::tempdir().unwrap();
-    let text = std::fs::read_to_string(workspace().join("config/vehicle/default.toml")).unwrap();
-    let (head, tail) = text.split_once("[column]").unwrap();
-    let plant = dir.path().join("column.toml");
-    let tail = tail.replacen("enabled = false", "enabled = true", 1);
-    std::fs::write(&plant, format!("{head}[column]{tail}")).unwrap();
+    let plant = e2e_common::column_vehicle(dir.path());
     let extra = ["--plant".as_ref(), plant.as_os_str()];
     let logs = fleet_logs(dir.path(), "shimmy_reference_eps", 3, 6, 77100, &extra);
     for k in 0..3 {

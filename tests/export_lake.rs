@@ -546,11 +546,7 @@ fn signal_files_are_named_by_the_sha256_of_the_log_file_in_every_format() {
 fn a_drive_with_a_torque_exports_the_torque_and_its_table() {
     let dir = tempfile::tempdir().unwrap();
     let ws = e2e_common::workspace();
-    let text = std::fs::read_to_string(ws.join("config/vehicle/default.toml")).unwrap();
-    let (head, tail) = text.split_once("[column]").unwrap();
-    let vehicle = dir.path().join("column.toml");
-    let tail = tail.replacen("enabled = false", "enabled = true", 1);
-    std::fs::write(&vehicle, format!("{head}[column]{tail}")).unwrap();
+    let vehicle = e2e_common::column_vehicle(dir.path());
     let scenario = std::fs::read_to_string(ws.join("config/scenarios/worn_0p2mm.toml")).unwrap();
     let scenario = scenario.replacen(
         "seed = 20\n",

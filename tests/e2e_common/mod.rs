@@ -132,6 +132,17 @@ pub fn generate(name: &str, seed: Option<u64>, dir: &Path) -> Generated {
     Generated { log, truth, stderr }
 }
 
+/// config/vehicle/default.toml with its MODEL.md §15 column enabled, written to
+/// `dir/column.toml`: a vehicle with a steering column (rim, torsion bar, hands).
+pub fn column_vehicle(dir: &Path) -> PathBuf {
+    let text = std::fs::read_to_string(workspace().join("config/vehicle/default.toml")).unwrap();
+    let (head, tail) = text.split_once("[column]").expect("a [column] section");
+    let tail = tail.replacen("enabled = false", "enabled = true", 1);
+    let path = dir.join("column.toml");
+    std::fs::write(&path, format!("{head}[column]{tail}")).unwrap();
+    path
+}
+
 /// The documented default alert rule for the 55 km/h shimmy alert (config/shimmyd.toml), written
 /// into every test configuration so that [`truth_shimmy`] applies the same numbers.
 pub const SHIMMY_CONFIRM: usize = 2;
