@@ -770,13 +770,8 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
         (Some(p), _) => {
             let t = ResponseTable::load(p)?;
             // As --table: built for the nominal vehicle (with its column), whatever the prior.
-            let ctx = || format!("torque table {}", p.display());
-            if t.sensor.signal != shimmy::observer::features::SteerSignal::TorqueNm {
-                anyhow::bail!("{}: a table of the steering angle, not the torque", ctx());
-            }
-            let mut v = nominal.params.clone();
-            v.column.enabled = true;
-            t.check_vehicle(&vehicle_hash(&v)?).with_context(ctx)?;
+            t.check_torque_vehicle(&nominal.params)
+                .with_context(|| format!("torque table {}", p.display()))?;
             Some(t)
         }
         (None, Some(p)) => p.load_torque_table()?,

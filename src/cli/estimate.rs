@@ -268,15 +268,9 @@ pub fn evaluate(args: &Args) -> anyhow::Result<(Option<Profile>, Estimation, Run
             let ctx = || format!("torque table {}", p.display());
             match (&args.vehicle, &profile) {
                 (None, Some(prof)) => prof.check_torque_table(&t).with_context(ctx)?,
-                (v, _) => {
-                    let mut vehicle = load_vehicle(v.as_deref())?;
-                    vehicle.column.enabled = true;
-                    if t.sensor.signal != crate::observer::features::SteerSignal::TorqueNm {
-                        anyhow::bail!("{}: a table of the steering angle, not the torque", ctx());
-                    }
-                    t.check_vehicle(&vehicle_hash(&vehicle)?)
-                        .with_context(ctx)?;
-                }
+                (v, _) => t
+                    .check_torque_vehicle(&load_vehicle(v.as_deref())?)
+                    .with_context(ctx)?,
             }
             Some(t)
         }

@@ -44,15 +44,8 @@ pub fn for_config(cfg: &Config) -> anyhow::Result<Box<dyn EventStage>> {
                     )
                 })?;
             } else {
-                let mut v = crate::cli::estimate::load_vehicle(cfg.vehicle.params.as_deref())?;
-                v.column.enabled = true;
-                if t.sensor.signal != crate::observer::features::SteerSignal::TorqueNm {
-                    anyhow::bail!(
-                        "vehicle.torque_table {}: a table of the steering angle, not the torque",
-                        p.display()
-                    );
-                }
-                t.check_vehicle(&crate::observer::table::vehicle_hash(&v)?)
+                let v = crate::cli::estimate::load_vehicle(cfg.vehicle.params.as_deref())?;
+                t.check_torque_vehicle(&v)
                     .with_context(|| format!("vehicle.torque_table {}", p.display()))?;
             }
             Some(t)

@@ -286,6 +286,22 @@ impl ResponseTable {
         Ok(())
     }
 
+    /// Refuses a table that is not of the torsion-bar torque, or not built on `vehicle` with its
+    /// MODEL.md §15 column enabled (a torque needs the column): what every command that takes
+    /// a torque table checks.
+    pub fn check_torque_vehicle(
+        &self,
+        vehicle: &crate::model::VehicleParams,
+    ) -> anyhow::Result<()> {
+        if self.sensor.signal != super::features::SteerSignal::TorqueNm {
+            bail!("a table of the steering angle, not of the torque (`--signal torque`)");
+        }
+        let mut v = vehicle.clone();
+        v.column.enabled = true;
+        self.check_vehicle(&vehicle_hash(&v)?)
+            .context("a torque table is built on the chassis with [column] enabled")
+    }
+
     /// Predicted distribution of z for clearance index `ic` and nuisance vehicle `im` at
     /// (`v0_kmh`, `decel_g`), bilinear in speed and deceleration (clamped at the grid's edges).
     /// No allocation.

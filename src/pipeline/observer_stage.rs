@@ -50,17 +50,6 @@ impl From<Option<ResponseTable>> for Tables {
     }
 }
 
-impl Tables {
-    /// A profile's tables ([`crate::profile::Profile::load_table`],
-    /// [`crate::profile::Profile::load_torque_table`]).
-    pub fn of_profile(p: &crate::profile::Profile) -> anyhow::Result<Tables> {
-        Ok(Tables {
-            angle: p.load_table()?,
-            torque: p.load_torque_table()?,
-        })
-    }
-}
-
 /// One used event as the estimator saw it.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Evidence {

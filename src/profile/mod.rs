@@ -395,16 +395,8 @@ impl Profile {
         Ok(Some(t))
     }
 
-    /// The chassis a torque table is built on: this profile's with its MODEL.md §15 column
-    /// enabled (a torsion-bar torque needs the column).
-    pub fn column_vehicle(&self) -> VehicleParams {
-        let mut v = self.vehicle.clone();
-        v.column.enabled = true;
-        v
-    }
-
     /// The profile's torque table ([`ProfileFile::torque_table`]), checked: a table of the
-    /// torque, built on [`Self::column_vehicle`] with the profile's prior, at the rate the
+    /// torque, built on this chassis with its §15 column enabled, with the profile's prior, at the rate the
     /// profile's `[sensors.steer_torque]` gives. `Ok(None)` when the profile names none, or
     /// when its mapping maps no steering torque (nothing would feed it).
     pub fn load_torque_table(&self) -> anyhow::Result<Option<ResponseTable>> {
@@ -422,12 +414,7 @@ impl Profile {
 
     /// Refuses a torque table built for another chassis, prior or torque rate.
     pub fn check_torque_table(&self, t: &ResponseTable) -> anyhow::Result<()> {
-        use crate::observer::features::SteerSignal;
-        if t.sensor.signal != SteerSignal::TorqueNm {
-            bail!("a table of the steering angle, not of the torque (`--signal torque`)");
-        }
-        t.check_vehicle(&vehicle_hash(&self.column_vehicle())?)
-            .context("a torque table is built on the profile's chassis with [column] enabled")?;
+        t.check_torque_vehicle(&self.vehicle)?;
         if let Some(ts) = &self.file.sensors.steer_torque {
             if (t.sensor.rate_hz - ts.rate_hz).abs() > 0.05 * ts.rate_hz {
                 bail!(
