@@ -305,6 +305,13 @@ struct TorqueChannel {
     without: u64,
 }
 
+impl TorqueChannel {
+    /// Whether the report's estimate comes from this channel: once it has used an event.
+    fn active(&self) -> bool {
+        self.estimator.events_used() > 0
+    }
+}
+
 impl Observer {
     pub fn new(cfg: ObserverConfig, table: Option<ResponseTable>) -> anyhow::Result<Observer> {
         let estimator = match &table {
@@ -370,7 +377,7 @@ impl Observer {
     /// angle's.
     pub fn active_estimator(&self) -> Option<&Estimator> {
         match &self.torque {
-            Some(t) if t.estimator.events_used() > 0 => Some(&t.estimator),
+            Some(t) if t.active() => Some(&t.estimator),
             _ => self.estimator.as_ref(),
         }
     }
@@ -737,11 +744,7 @@ impl Observer {
                 format!("below {:.2} mm ({} events)", s.below_mm, s.events_used),
             ),
         };
-        let from_torque = self
-            .torque
-            .as_ref()
-            .is_some_and(|t| t.estimator.events_used() > 0);
-        let verdict = if from_torque {
+        let verdict = if self.torque.as_ref().is_some_and(TorqueChannel::active) {
             format!("{verdict} from the steering torque")
         } else {
             verdict
@@ -780,7 +783,7 @@ impl Observer {
             events_sensor_mismatch: self.sensor_mismatch,
             p_clearance_above_threshold: summary.map(|s| s.1),
             signals: self.torque.as_ref().map(|t| SignalUse {
-                estimate_from: if t.estimator.events_used() > 0 {
+                estimate_from: if t.active() {
                     features::SteerSignal::TorqueNm
                 } else {
                     features::SteerSignal::AngleDeg

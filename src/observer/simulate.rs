@@ -927,15 +927,15 @@ pub fn measure_run(
         noise_deg: sensor.noise_deg,
     };
     let mut ex_torque = Extractor::new();
-    let mut feed = |s: Sample, det: &mut Detector| {
-        det.push(&s).map(|fin| {
-            let tf = torque_sensor
-                .then(|| super::Observer::torque_features(&mut ex_torque, cfg, noise, &fin))
-                .flatten();
-            let (rec, f) = super::Observer::measure(&mut ex, cfg, fin);
-            (rec, if torque_sensor { tf } else { f })
-        })
+    // A finished event's record and the features of the sensor's signal.
+    let mut measure = |fin: crate::events::Finished<'_>| {
+        let tf = torque_sensor
+            .then(|| super::Observer::torque_features(&mut ex_torque, cfg, noise, &fin))
+            .flatten();
+        let (rec, f) = super::Observer::measure(&mut ex, cfg, fin);
+        (rec, if torque_sensor { tf } else { f })
     };
+    let mut feed = |s: Sample, det: &mut Detector| det.push(&s).map(&mut measure);
     let brake_at = |t_ns: i64| {
         let i = ((t_ns as f64 * 1e-9) * fs_true).round() as usize;
         pedal[i.min(pedal.len() - 1)]
@@ -990,11 +990,7 @@ pub fn measure_run(
             let fin = det
                 .flush()
                 .context("the detector found no braking event in the simulated run")?;
-            let tf = torque_sensor
-                .then(|| super::Observer::torque_features(&mut Extractor::new(), cfg, noise, &fin))
-                .flatten();
-            let (rec, f) = super::Observer::measure(&mut ex, cfg, fin);
-            (rec, if torque_sensor { tf } else { f })
+            measure(fin)
         }
     };
     let features = feats.context("too few steering samples in the simulated event")?;
