@@ -50,6 +50,9 @@ fn sha256_hex(path: &Path) -> String {
     d.iter().map(|b| format!("{b:02x}")).collect()
 }
 
+/// The monitor's table folders (everything else in a lake is a vehicle's signal files).
+const TABLES_DIRS: [&str; 3] = ["events", "estimates", "alerts"];
+
 /// Every file under `dir` (relative path → bytes).
 fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
     let mut out = BTreeMap::new();
@@ -278,6 +281,24 @@ fn check_tables_equal_estimate(
         assert!(strs(b, "model_version")
             .iter()
             .all(|s| s.as_deref() == Some(concat!("shimmy-monitor ", env!("CARGO_PKG_VERSION")))));
+        // The row's log is one whose signal files the lake holds (named by its hash's start).
+        for h in strs(b, "log_blake3") {
+            let h = h.unwrap();
+            assert!(
+                h.len() == 64 && h.bytes().all(|c| c.is_ascii_hexdigit()),
+                "log_blake3 {h:?}"
+            );
+            assert!(
+                files
+                    .keys()
+                    .any(|p| !TABLES_DIRS.iter().any(|t| p.starts_with(t))
+                        && p.file_name()
+                            .unwrap()
+                            .to_string_lossy()
+                            .starts_with(&h[..16])),
+                "no signal file of the log {h}"
+            );
+        }
     }
     rows.sort_by(|a, b| a.1.total_cmp(&b.1));
     let want = est["events"].as_array().unwrap();
@@ -472,10 +493,11 @@ fn the_real_rav4_drive_exports_what_decode_and_estimate_say() {
     assert!(snapshot(&lake) == files, "a rerun changed the lake");
 }
 
-/// The log's sha256 is taken in the pass that reads it (an MDF 4 file in a pass of its own):
-/// whatever the format, the signal files are named by the sha256 of the file as it is on disk.
+/// The log's BLAKE3 is taken in the pass that reads it (an MDF 4 file in a pass of its own):
+/// whatever the format, the signal files are named by the BLAKE3 of the file as it is on disk
+/// (what `b3sum` prints), and the monitor's rows carry it whole.
 #[test]
-fn signal_files_are_named_by_the_sha256_of_the_log_file_in_every_format() {
+fn signal_files_are_named_by_the_blake3_of_the_log_file_in_every_format() {
     let Some(log) = shimmy::shared_data::require_file(shimmy::shared_data::RAV4_LOG) else {
         return;
     };
@@ -513,7 +535,7 @@ fn signal_files_are_named_by_the_sha256_of_the_log_file_in_every_format() {
             "{}",
             String::from_utf8_lossy(&out.stderr)
         );
-        let want = sha256_hex(l)[..16].to_string();
+        let want = blake3::hash(&std::fs::read(l).unwrap()).to_hex()[..16].to_string();
         let files = snapshot(&lake);
         let names: Vec<String> = files
             .keys()
@@ -524,7 +546,7 @@ fn signal_files_are_named_by_the_sha256_of_the_log_file_in_every_format() {
         for n in &names {
             assert!(
                 n.starts_with(&want),
-                "{}: file {n}, sha256 {want}",
+                "{}: file {n}, BLAKE3 {want}",
                 l.display()
             );
         }

@@ -227,7 +227,7 @@ def _empty_events():
             ("odometer_km", f64),
             ("peak_torque_bp_nm", f64),
             ("torque_used", pa.bool_()),
-            ("log_sha256", pa.string()),
+            ("log_blake3", pa.string()),
             ("run_sha256", pa.string()),
             ("model_version", pa.string()),
             ("table_sha256", pa.string()),

@@ -28,10 +28,11 @@ use crate::profile::Profile;
 ///   alerts/vehicle=<VEHICLE>/date=<yyyy-mm-dd>/*.parquet     alert transitions (raised, updated,
 ///                                                            cleared)
 /// The monitor's tables come from the same pipeline as `shimmy estimate` over the same logs in
-/// the same order (every row carries the model version and the sha256 of the log, the run, the
-/// response table and the DBC). docs/FLEET.md lists every column.
+/// the same order (every row carries the model version, the BLAKE3 of the log, as `b3sum` prints
+/// it, and the sha256 of the run, the response table and the DBC). docs/FLEET.md lists every
+/// column.
 ///
-/// Appending and rerunning: file names derive from the content of the inputs (the log's sha256
+/// Appending and rerunning: file names derive from the content of the inputs (the log's BLAKE3
 /// for signals; the run's hash, over every log, the DBC, mapping, table and settings, for the
 /// monitor's tables) and the bytes written are reproducible, so exporting the same logs again
 /// rewrites the same files and adds none: a failed or interrupted run is resumed by running it

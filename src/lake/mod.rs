@@ -13,17 +13,19 @@
 //! | `estimates/vehicle=<vehicle>/date=<yyyy-mm-dd>/<run16>-<nnnn>.parquet` | the estimate after each event |
 //! | `alerts/vehicle=<vehicle>/date=<yyyy-mm-dd>/<run16>-<nnnn>.parquet` | alert transitions |
 //!
-//! Names: `log16` is the first 16 hex digits of the log's sha256, `dbc8` of the DBC's (the
-//! signal files depend on nothing else); `run16` of the run's hash ([`run_sha256`]: every log's
-//! sha256 in order, the DBC, mapping, table and settings), `nnnn` the log's position in the run
+//! Names: `log16` is the first 16 hex digits of the log's BLAKE3 hash, `dbc8` of the DBC's
+//! sha256 (the signal files depend on nothing else); `run16` of the run's hash ([`run_sha256`]:
+//! every log's hash in order, the DBC, mapping, table and settings), `nnnn` the log's position in the run
 //! (the monitor's rows depend on every log before them), `seq` the message's files of that log.
 //! Dates are the UTC dates of the frames' timestamps (signals) or of the event's end (tables).
 //!
 //! One log at a time ([`Exporter::export_log`]): its frames go through the DBC decoder into the
 //! signal files and, frame by frame, through the same pipeline as `shimmy estimate`
 //! ([`crate::pipeline::feeder::Offline`]: mapper → detector samples → [`crate::pipeline::Monitor`]
-//! → alert book) into the monitor's rows. The log's sha256 is computed from the bytes the reader
+//! → alert book) into the monitor's rows. The log's hash is computed from the bytes the reader
 //! reads, in the same pass (an MDF 4 file, read by seeking, is hashed in a pass of its own).
+//! Logs are hashed with BLAKE3 (`b3sum` checks it), the small inputs with sha256: a log is the
+//! only input whose hash costs, and sha256 was a tenth of an export's CPU time (BENCHMARKS.md).
 //! A log's signal files appear (renamed from hidden temporary names to their hash-derived
 //! names) only when the whole log has been read; a log that fails leaves none of them. The
 //! monitor's rows are held until [`Exporter::finish`], when every log's hash, hence the run's,
@@ -65,12 +67,31 @@ pub fn sha256_file(path: &Path) -> anyhow::Result<String> {
     let mut f =
         std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
     let mut h = Sha256::new();
-    hash_to_end(&mut f, &mut h, path)?;
+    hash_to_end(&mut f, |b| h.update(b), path)?;
     Ok(hex(&h.finalize()))
 }
 
-/// Feeds the rest of `r` (the file `path`) into `h`.
-fn hash_to_end(r: &mut impl Read, h: &mut Sha256, path: &Path) -> anyhow::Result<()> {
+/// BLAKE3 of a file's content, hex (what `b3sum` prints): a log's identity in the lake.
+pub fn blake3_file(path: &Path) -> anyhow::Result<String> {
+    let mut f =
+        std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let mut h = blake3::Hasher::new();
+    hash_to_end(
+        &mut f,
+        |b| {
+            h.update(b);
+        },
+        path,
+    )?;
+    Ok(h.finalize().to_hex().to_string())
+}
+
+/// Feeds the rest of `r` (the file `path`) into `update`.
+fn hash_to_end(
+    r: &mut impl Read,
+    mut update: impl FnMut(&[u8]),
+    path: &Path,
+) -> anyhow::Result<()> {
     let mut buf = vec![0u8; 1 << 20];
     loop {
         let n = r
@@ -79,14 +100,14 @@ fn hash_to_end(r: &mut impl Read, h: &mut Sha256, path: &Path) -> anyhow::Result
         if n == 0 {
             return Ok(());
         }
-        h.update(&buf[..n]);
+        update(&buf[..n]);
     }
 }
 
-/// A reader that hashes what it reads: the log's sha256 in the pass that parses it.
+/// A reader that hashes what it reads: the log's BLAKE3 in the pass that parses it.
 struct HashingReader<R> {
     inner: R,
-    state: Arc<Mutex<(Sha256, u64)>>,
+    state: Arc<Mutex<(blake3::Hasher, u64)>>,
 }
 
 impl<R: Read> Read for HashingReader<R> {
@@ -99,14 +120,14 @@ impl<R: Read> Read for HashingReader<R> {
     }
 }
 
-/// Opens a log for reading while hashing it. The returned closure gives the file's sha256 once
+/// Opens a log for reading while hashing it. The returned closure gives the file's BLAKE3 once
 /// reading has ended: what the reader read, completed from the file when the reader stopped
 /// before the end (a container's trailing bytes, a read error). MDF 4 is read by seeking, so it
 /// is hashed in a pass of its own.
 fn open_hashed(
     path: &Path,
 ) -> anyhow::Result<(LogReader, Box<dyn FnOnce() -> anyhow::Result<String>>)> {
-    let state = Arc::new(Mutex::new((Sha256::new(), 0u64)));
+    let state = Arc::new(Mutex::new((blake3::Hasher::new(), 0u64)));
     let (src, hashed) = LogReader::open_with(path, |inner| HashingReader {
         inner,
         state: Arc::clone(&state),
@@ -114,8 +135,8 @@ fn open_hashed(
     .with_context(|| format!("cannot open log {}", path.display()))?;
     if !hashed {
         // MDF 4 is read by seeking: its bytes are hashed in a pass of their own.
-        let sha = sha256_file(path)?;
-        return Ok((src, Box::new(move || Ok(sha))));
+        let hash = blake3_file(path)?;
+        return Ok((src, Box::new(move || Ok(hash))));
     }
     let path = path.to_path_buf();
     let finish = move || -> anyhow::Result<String> {
@@ -127,8 +148,14 @@ fn open_hashed(
             .with_context(|| format!("cannot open {}", path.display()))?;
         f.seek(std::io::SeekFrom::Start(read))
             .with_context(|| format!("reading {}", path.display()))?;
-        hash_to_end(&mut f, &mut h, &path)?;
-        Ok(hex(&h.finalize()))
+        hash_to_end(
+            &mut f,
+            |b| {
+                h.update(b);
+            },
+            &path,
+        )?;
+        Ok(h.finalize().to_hex().to_string())
     };
     Ok((src, Box::new(finish)))
 }
@@ -157,11 +184,12 @@ pub struct Inputs {
     pub settings_sha256: String,
 }
 
-/// The run's hash: the model version, every input's hash and every log's sha256, in order.
-pub fn run_sha256(inputs: &Inputs, log_sha256: &[String]) -> String {
+/// The run's hash (sha256): the model version, every input's hash and every log's BLAKE3, in
+/// order.
+pub fn run_sha256(inputs: &Inputs, log_blake3: &[String]) -> String {
     let mut h = Sha256::new();
     for part in [
-        "shimmy-lake-run-1",
+        "shimmy-lake-run-2",
         &model_version(),
         &inputs.vehicle,
         &inputs.dbc_sha256,
@@ -178,7 +206,7 @@ pub fn run_sha256(inputs: &Inputs, log_sha256: &[String]) -> String {
         h.update(t.as_bytes());
         h.update([0]);
     }
-    for s in log_sha256 {
+    for s in log_blake3 {
         h.update(s.as_bytes());
         h.update([0]);
     }
@@ -209,7 +237,8 @@ pub fn check_vehicle_id(id: &str) -> anyhow::Result<()> {
 /// What one log gave.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct LogDone {
-    pub sha256: String,
+    /// BLAKE3 of the log file, hex.
+    pub blake3: String,
     pub frames: u64,
     pub signals: SignalCounts,
     /// Braking events that finished during this log.
@@ -226,8 +255,8 @@ pub struct Exporter {
     lake: PathBuf,
     inputs: Inputs,
     pipe: Offline,
-    /// Each log's sha256 by position in the run (None: it could not be read to the end).
-    shas: Vec<Option<String>>,
+    /// Each log's BLAKE3 by position in the run (None: it could not be read to the end).
+    hashes: Vec<Option<String>>,
     /// The monitor's rows by the position of the log they finished in, written at
     /// [`Exporter::finish`], when the run's hash is known.
     rows: Vec<(usize, MonitorRows)>,
@@ -258,7 +287,7 @@ impl Exporter {
             lake,
             inputs,
             pipe,
-            shas: Vec::new(),
+            hashes: Vec::new(),
             rows: Vec::new(),
             last: None,
             signals: true,
@@ -291,11 +320,11 @@ impl Exporter {
         path: &Path,
         progress: &mut dyn FnMut(u64),
     ) -> anyhow::Result<LogDone> {
-        if self.shas.len() > index {
+        if self.hashes.len() > index {
             bail!("log position {index} exported twice (positions must increase)");
         }
-        self.shas.resize(index + 1, None);
-        let (mut src, sha) = open_hashed(path)?;
+        self.hashes.resize(index + 1, None);
+        let (mut src, hashed) = open_hashed(path)?;
         // Temporary names until the log's hash is known: derived from the log's path, so a
         // rerun of a crashed export overwrites what it left.
         let tmp_key = sha256_bytes(path.as_os_str().as_encoded_bytes());
@@ -337,12 +366,12 @@ impl Exporter {
             self.rows.push((index, rows));
         }
         // The hash of a log that could not be read to its end is left out of the run's.
-        let sha256 = sha();
-        if let Ok(h) = &sha256 {
-            self.shas[index] = Some(h.clone());
+        let hash = hashed();
+        if let Ok(h) = &hash {
+            self.hashes[index] = Some(h.clone());
         }
         read.with_context(|| format!("log {}", path.display()))?;
-        let sha256 = sha256?;
+        let hash = hash?;
         if frames == 0 {
             bail!(
                 "log {}: no CAN frames (empty, or not a CAN log{})",
@@ -364,7 +393,7 @@ impl Exporter {
         let counts = if self.signals {
             let done = sig.finish()?;
             let counts = done.counts.clone();
-            let tag = format!("{}-{}", &sha256[..16], &self.inputs.dbc_sha256[..8]);
+            let tag = format!("{}-{}", &hash[..16], &self.inputs.dbc_sha256[..8]);
             files.extend(done.commit(&tag)?);
             counts
         } else {
@@ -372,7 +401,7 @@ impl Exporter {
         };
         progress(frames);
         Ok(LogDone {
-            sha256,
+            blake3: hash,
             frames,
             signals: counts,
             events,
@@ -393,7 +422,7 @@ impl Exporter {
             let stamp = Stamp {
                 // A log that failed part-way keeps the rows its frames made; its hash is then
                 // unknown.
-                log_sha256: self.shas[index].clone().unwrap_or_default(),
+                log_blake3: self.hashes[index].clone().unwrap_or_default(),
                 run_sha256: run.to_string(),
                 model_version: model_version(),
                 table_sha256: self.inputs.table_sha256.clone(),
@@ -440,8 +469,8 @@ impl Exporter {
                 (_, None) => {}
             }
         }
-        let shas: Vec<String> = self.shas.iter().flatten().cloned().collect();
-        let run = run_sha256(&self.inputs, &shas);
+        let hashes: Vec<String> = self.hashes.iter().flatten().cloned().collect();
+        let run = run_sha256(&self.inputs, &hashes);
         let files = self.write_rows(&run)?;
         Ok(RunDone {
             files,

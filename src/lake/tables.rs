@@ -23,9 +23,9 @@ use crate::pipeline::Finished;
 /// Where a row came from; the same for every row of one log's files.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Stamp {
-    /// sha256 of the log file (hex).
-    pub log_sha256: String,
-    /// The run's chain hash up to and including this log (hex, see [`super`]).
+    /// BLAKE3 of the log file (hex, as `b3sum` prints it).
+    pub log_blake3: String,
+    /// The run's hash (hex, [`super::run_sha256`]).
     pub run_sha256: String,
     /// The code that computed the row: `shimmy-monitor <version>`.
     pub model_version: String,
@@ -42,7 +42,7 @@ pub const TABLES: [&str; 3] = ["events", "estimates", "alerts"];
 
 fn stamp_fields() -> Vec<Field> {
     vec![
-        Field::new("log_sha256", DataType::Utf8, false),
+        Field::new("log_blake3", DataType::Utf8, false),
         Field::new("run_sha256", DataType::Utf8, false),
         Field::new("model_version", DataType::Utf8, false),
         Field::new("table_sha256", DataType::Utf8, true),
@@ -170,7 +170,7 @@ fn stamp_columns(stamp: &Stamp, n: usize) -> Vec<ArrayRef> {
         Arc::new(b.finish())
     };
     vec![
-        col(Some(&stamp.log_sha256)),
+        col(Some(&stamp.log_blake3)),
         col(Some(&stamp.run_sha256)),
         col(Some(&stamp.model_version)),
         col(stamp.table_sha256.as_deref()),

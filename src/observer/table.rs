@@ -260,15 +260,25 @@ impl ResponseTable {
     pub fn load(path: &std::path::Path) -> anyhow::Result<ResponseTable> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read response table {}", path.display()))?;
-        let mut v: serde_json::Value = serde_json::from_str(&text)
-            .with_context(|| format!("{} is not a response table", path.display()))?;
-        if v.get("format").and_then(|f| f.as_str()) == Some(FORMAT_V3) {
+        let not_a_table = || format!("{} is not a response table", path.display());
+        // The format first (a scan that builds nothing): only a version 3 table goes through a
+        // JSON tree, to drop its `linear` section; the others are read straight into the table
+        // (building the tree cost as much as the rest of the start-up of an export).
+        #[derive(serde::Deserialize)]
+        struct Head<'a> {
+            #[serde(borrow)]
+            format: Option<std::borrow::Cow<'a, str>>,
+        }
+        let head: Head = serde_json::from_str(&text).with_context(not_a_table)?;
+        let t: ResponseTable = if head.format.as_deref() == Some(FORMAT_V3) {
+            let mut v: serde_json::Value = serde_json::from_str(&text).with_context(not_a_table)?;
             if let Some(o) = v.as_object_mut() {
                 o.remove("linear");
             }
-        }
-        let t: ResponseTable = serde_json::from_value(v)
-            .with_context(|| format!("{} is not a response table", path.display()))?;
+            serde_json::from_value(v).with_context(not_a_table)?
+        } else {
+            serde_json::from_str(&text).with_context(not_a_table)?
+        };
         t.validate()
             .with_context(|| format!("response table {}", path.display()))?;
         Ok(t)
