@@ -36,7 +36,7 @@ use crate::plant::{ModelPlant, Plant};
 use crate::{FirmwareSim, RunInfo, Scenario};
 use shimmy::alerts::Kind;
 use shimmy::analysis::sweep::{default_threads, par_map};
-use shimmy::cli::estimate::{estimate_files, Estimation};
+use shimmy::cli::estimate::{estimate_files_with, BaselineLogs, Estimation};
 use shimmy::dbc::Database;
 use shimmy::model::VehicleParams;
 use shimmy::observer::simulate::{perturb, HandsPrior, NuisanceRanges};
@@ -154,6 +154,20 @@ pub struct FleetArgs {
     /// a separate --work-dir per value.
     #[arg(long, default_value_t = 0)]
     pub replicate: u64,
+    /// Give each vehicle a baseline: its log `fleet_<seed>.log` in this directory, written by
+    /// an earlier run with the same seed base and `--clearance-mm` (the same vehicles with new
+    /// joints, e.g. `--clearance-mm 0.03 --replicate 1 --events 10 --logs-only`), whose events
+    /// at that clearance condition the estimate (`shimmy estimate --baseline`).
+    #[arg(long, value_name = "DIR")]
+    pub baseline_dir: Option<PathBuf>,
+    /// The clearance of the --baseline-dir logs (mm).
+    #[arg(
+        long,
+        value_name = "MM",
+        default_value_t = 0.03,
+        requires = "baseline_dir"
+    )]
+    pub baseline_clearance_mm: f64,
 }
 
 /// The scenario seed of replicate `r` of the vehicle with `seed` (r = 0: the seed itself).
@@ -574,11 +588,16 @@ fn one_vehicle(
     let seed = args.seed_base + k as u64;
     let (log, eval) = vehicle_log(k, args, setup, dir)?;
     let c_mm = eval.clearance_true_mm;
-    let (report, _) = estimate_files(
+    let baseline = args.baseline_dir.as_ref().map(|d| BaselineLogs {
+        logs: vec![d.join(format!("fleet_{seed}.log"))],
+        clearance_mm: args.baseline_clearance_mm,
+    });
+    let (report, _) = estimate_files_with(
         &setup.mapping,
         setup.dbc_path.as_deref(),
         tables.clone(),
         cfg.clone(),
+        baseline.as_ref(),
         std::slice::from_ref(&log),
     )
     .with_context(|| format!("estimating {}", log.display()))?;
@@ -912,6 +931,7 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use shimmy::cli::estimate::estimate_files;
 
     #[test]
     fn a_vehicle_plan_is_fixed_by_its_seed_and_within_the_issue_ranges() {

@@ -269,6 +269,8 @@ fn estimate_args(logs: Vec<PathBuf>, profile: String, config: Option<PathBuf>) -
         angle_only: false,
         config,
         format: TextOrJson::Json,
+        baseline_logs: Vec::new(),
+        baseline_clearance_mm: 0.03,
         logs,
     }
 }

@@ -111,6 +111,24 @@ pub struct Args {
     #[arg(long, value_enum, default_value_t = Format::Json)]
     pub format: Format,
 
+    /// A log of this vehicle driven when its joints' clearance was known (its first drives
+    /// after the joints were replaced; repeatable). Its braking events become the vehicle's
+    /// baseline: they tell the estimator how this car's signals sit against the table's model
+    /// (a sensor gain, a transfer the model does not have), which the estimate then takes out
+    /// instead of reading it as clearance (docs/ACCURACY.md, "The per-vehicle baseline").
+    #[arg(long = "baseline", value_name = "LOG")]
+    pub baseline_logs: Vec<PathBuf>,
+
+    /// The joints' clearance during the --baseline logs (mm): new joints sit at about
+    /// 0.02-0.06 mm.
+    #[arg(
+        long,
+        value_name = "MM",
+        default_value_t = 0.03,
+        requires = "baseline_logs"
+    )]
+    pub baseline_clearance_mm: f64,
+
     /// The vehicle's logs, in time order.
     #[arg(value_name = "LOG", required = true)]
     pub logs: Vec<PathBuf>,
@@ -160,6 +178,17 @@ pub struct Estimation {
     /// The alerts open at the end of the logs (raised after some event and not cleared since),
     /// decided by the same rules and lifecycle as shimmyd's ([`crate::alerts::AlertBook`]).
     pub alerts: Vec<Alert>,
+    /// The vehicle's baseline, when one was given ([`estimate_files_with`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub baseline: Option<BaselineReport>,
+}
+
+/// What the baseline gave: its clearance and how many of its events each estimator took.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct BaselineReport {
+    pub clearance_mm: f64,
+    pub angle_events: u32,
+    pub torque_events: u32,
 }
 
 /// An [`Estimation`] reads as its report (`e.events`, `e.verdict`, …); only the alerts are its
@@ -180,11 +209,46 @@ pub fn estimate_files(
     cfg: ObserverConfig,
     logs: &[PathBuf],
 ) -> anyhow::Result<(Estimation, RunStats)> {
+    estimate_files_with(mapping_path, dbc, tables, cfg, None, logs)
+}
+
+/// Logs of the vehicle at a known clearance: its baseline ([`estimate_files_with`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BaselineLogs {
+    pub logs: Vec<PathBuf>,
+    pub clearance_mm: f64,
+}
+
+/// [`estimate_files`] with the vehicle's baseline: the `baseline` logs go through the same
+/// pipeline first (their events only; no alerts, not in the report's events), and their used
+/// events, at the baseline's clearance, condition the estimate from `logs`
+/// ([`crate::pipeline::observer_stage::ObserverStage::set_baseline`]). Errors when the
+/// baseline logs hold no used event.
+pub fn estimate_files_with(
+    mapping_path: &Path,
+    dbc: Option<&Path>,
+    tables: impl Into<crate::pipeline::Tables>,
+    cfg: ObserverConfig,
+    baseline: Option<&BaselineLogs>,
+    logs: &[PathBuf],
+) -> anyhow::Result<(Estimation, RunStats)> {
+    let tables: crate::pipeline::Tables = tables.into();
+    let base = match baseline {
+        Some(b) => Some(baseline_of(
+            mapping_path,
+            dbc,
+            tables.clone(),
+            cfg.clone(),
+            b,
+        )?),
+        None => None,
+    };
     let Offline {
         mut feeder,
         mut monitor,
         ..
     } = Offline::open(mapping_path, dbc, tables, cfg, "shimmy estimate")?;
+    let base_use = base.map(|b| monitor.stage_mut().set_baseline(b));
     for log in logs {
         let mut src =
             LogReader::open(log).with_context(|| format!("cannot open log {}", log.display()))?;
@@ -201,8 +265,52 @@ pub fn estimate_files(
     let out = Estimation {
         report: monitor.stage().observer().report(),
         alerts: monitor.standing().to_vec(),
+        baseline: base_use.map(|u| BaselineReport {
+            clearance_mm: baseline.map_or(f64::NAN, |b| b.clearance_mm),
+            angle_events: u.angle_events,
+            torque_events: u.torque_events,
+        }),
     };
     Ok((out, feeder.stats))
+}
+
+/// The used events of the baseline logs, through the same pipeline as the logs.
+fn baseline_of(
+    mapping_path: &Path,
+    dbc: Option<&Path>,
+    tables: crate::pipeline::Tables,
+    cfg: ObserverConfig,
+    b: &BaselineLogs,
+) -> anyhow::Result<crate::pipeline::observer_stage::Baseline> {
+    let Offline {
+        mut feeder,
+        mut monitor,
+        ..
+    } = Offline::open(mapping_path, dbc, tables, cfg, "shimmy estimate")?;
+    for log in &b.logs {
+        let mut src = LogReader::open(log)
+            .with_context(|| format!("cannot open baseline log {}", log.display()))?;
+        feeder
+            .feed_source(&mut src, |s| {
+                monitor.push(s);
+            })
+            .with_context(|| format!("baseline log {}", log.display()))?;
+        for s in src.take_skips() {
+            eprintln!("shimmy estimate: skipped {}: {}", s.location, s.reason);
+        }
+    }
+    monitor.finish();
+    let evidence: Vec<_> = monitor.stage().evidence().copied().collect();
+    if evidence.is_empty() {
+        bail!(
+            "the baseline logs hold no braking event the estimator can use: {}",
+            monitor.stage().observer().report().verdict
+        );
+    }
+    Ok(crate::pipeline::observer_stage::Baseline {
+        clearance_mm: b.clearance_mm,
+        evidence,
+    })
 }
 
 /// What `shimmy estimate` prints: the observer's report with the alerts standing, and the
@@ -291,7 +399,24 @@ pub fn evaluate(args: &Args) -> anyhow::Result<(Option<Profile>, Estimation, Run
             args.dbc.clone(),
         ),
     };
-    let (report, stats) = estimate_files(&mapping_path, dbc.as_deref(), tables, cfg, &args.logs)?;
+    if !(args.baseline_clearance_mm > 0.0 && args.baseline_clearance_mm.is_finite()) {
+        bail!(
+            "--baseline-clearance-mm must be a clearance above 0 mm, not {}",
+            args.baseline_clearance_mm
+        );
+    }
+    let baseline = (!args.baseline_logs.is_empty()).then(|| BaselineLogs {
+        logs: args.baseline_logs.clone(),
+        clearance_mm: args.baseline_clearance_mm,
+    });
+    let (report, stats) = estimate_files_with(
+        &mapping_path,
+        dbc.as_deref(),
+        tables,
+        cfg,
+        baseline.as_ref(),
+        &args.logs,
+    )?;
     Ok((profile, report, stats))
 }
 

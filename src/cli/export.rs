@@ -212,6 +212,7 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
     let estimation = Estimation {
         report: pipe.monitor.stage().observer().report(),
         alerts: pipe.monitor.standing().to_vec(),
+        baseline: None,
     };
     Ok(ExportSummary {
         lake: args.out.clone(),

@@ -68,6 +68,12 @@ pub struct EstimatorConfig {
     /// Method "linear": standard deviation (ln units) of a vehicle's offset from the table's
     /// model in each feature, shared by all its events (model mismatch at vehicle level).
     pub misfit_std: f64,
+    /// Method "linear": standard deviation (ln units) added to `misfit_std` once the vehicle
+    /// has baseline events ([`Estimator::update_baseline`]): the events at a known clearance
+    /// then say how far the vehicle sits from the table's model, which a car that is not the
+    /// model (a sensor gain, a transfer the table does not have) may do by more than the
+    /// table's own vehicles spread.
+    pub baseline_misfit_std: f64,
     /// Method "linear": grid points of the kingpin-damping coordinate (1-64).
     pub damping_grid: usize,
     /// Method "linear": power on the events' joint likelihood (0 < p ≤ 1). Below 1 it widens
@@ -121,6 +127,7 @@ impl Default for EstimatorConfig {
             grid_refine: 4,
             evidence_half_life_km: 5000.0,
             misfit_std: 0.0,
+            baseline_misfit_std: 0.5,
             damping_grid: 9,
             evidence_power: 0.275,
             torque_evidence_power: 0.2,
@@ -186,6 +193,7 @@ impl EstimatorConfig {
             }
         }
         non_negative("misfit_std", self.misfit_std)?;
+        non_negative("baseline_misfit_std", self.baseline_misfit_std)?;
         non_negative("evidence_half_life_km", self.evidence_half_life_km)?;
         if super::marginal::PhaseMode::parse(&self.phase).is_none() {
             anyhow::bail!(
@@ -299,6 +307,7 @@ pub struct Estimator {
     use_peak: bool,
     last_odometer_m: Option<f64>,
     events_used: u32,
+    baseline_events: u32,
 }
 
 impl Estimator {
@@ -347,6 +356,7 @@ impl Estimator {
             use_peak,
             last_odometer_m: None,
             events_used: 0,
+            baseline_events: 0,
             cfg,
         })
     }
@@ -512,6 +522,44 @@ impl Estimator {
         }
         self.normalise();
         self.events_used += 1;
+    }
+
+    /// Adds one event of this vehicle at a known clearance `clearance_mm` (its joints' when
+    /// the event was driven, e.g. new ones after a replacement): a baseline event. It tells the
+    /// estimator about the vehicle (its nuisances and how far its features sit from the table's
+    /// model), not about its clearance now; the estimate becomes the one given the baseline
+    /// (src/observer/marginal.rs). Returns false, adding nothing, for the `"mixture"` method,
+    /// which has no shared vehicle terms to condition.
+    #[allow(clippy::too_many_arguments)]
+    pub fn update_baseline(
+        &mut self,
+        table: &ResponseTable,
+        rms_deg: f64,
+        peak_deg: f64,
+        cruise_rms_deg: Option<f64>,
+        v0_kmh: f64,
+        decel_g: f64,
+        clearance_mm: f64,
+    ) -> bool {
+        let g = self.cfg.transfer_gain;
+        let cruise_rms_deg = cruise_rms_deg.filter(|_| self.cfg.cruise && table.cruise);
+        let z = super::features::z(rms_deg / g, peak_deg / g);
+        let zc = cruise_rms_deg.map(|c| super::features::z_cruise(c / g));
+        let Some(lp) = self.linear.as_mut() else {
+            return false;
+        };
+        let mask = [self.use_rms, self.use_peak, zc.is_some()];
+        let z3 = [z[0], z[1], zc.unwrap_or(0.0)];
+        let pos = super::marginal::axis_position(&table.clearance_mm, clearance_mm);
+        lp.update_known(z3, &mask, v0_kmh, decel_g, pos);
+        lp.probabilities_into(&mut self.marg, &self.log_prior);
+        self.baseline_events += 1;
+        true
+    }
+
+    /// Baseline events added ([`Self::update_baseline`]).
+    pub fn baseline_events(&self) -> u32 {
+        self.baseline_events
     }
 
     /// Posterior probabilities on the clearance grid (marginal over the nuisance vehicles).

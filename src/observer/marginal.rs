@@ -43,6 +43,19 @@
 //! Wear: before each event all statistics are multiplied by 2^(−distance / half-life): old
 //! evidence fades, so the estimate follows a clearance that grows with distance.
 //!
+//! Baseline ([`LinearPosterior::update_known`]): events of the same vehicle at a known
+//! clearance c_b (its first events after the joints were replaced) share its x (nuisances and
+//! misfit η) with the later events but not their clearance. Their statistics are kept apart,
+//! computed once at c_b, and each clearance's evidence becomes the conditional one,
+//!
+//!   p(z | c, baseline) = Σ_q p(z, z_b | c, c_b, q) / Σ_q p(z_b | c_b, q)
+//!
+//! over the grid points q (numerator: the sum of both statistics), so what the baseline events
+//! say about η (a transfer, sensor gain or noise floor the table's model misses, all of which
+//! move ln RMS and ln peak by a constant) is subtracted from the later events instead of being
+//! read as clearance. The baseline does not fade with distance (it describes the vehicle, not
+//! its wear) and does not count in the goodness-of-fit's degrees of freedom.
+//!
 //! What it is not: robust to outlier events (the Gaussian has no outlier floor), or a model of
 //! the physics (the table's model stands for it).
 //!
@@ -103,6 +116,16 @@ impl Stats {
         self.h += ht_w * r;
         self.s += (r.transpose() * w * r)[(0, 0)];
         self.ld += ld;
+    }
+
+    /// The statistics of both sets of events.
+    fn plus(&self, o: &Stats) -> Stats {
+        Stats {
+            p: self.p + o.p,
+            h: self.h + o.h,
+            s: self.s + o.s,
+            ld: self.ld + o.ld,
+        }
     }
 
     /// ln p(events | grid point) up to a constant, with prior precision `lam` (ln det `ld_lam`),
@@ -167,8 +190,18 @@ pub struct LinearPosterior {
     basis_e: Vec<Basis>,
     /// Scratch: the mean over the quadrature phases of `basis_e`, per grid point of "event".
     basis_e_mean: Vec<Basis>,
-    /// Scratch: ln p(z | c_g, point) of one clearance.
+    /// Scratch: ln p(z | c_g, point) of one clearance (and, with a baseline, of the baseline
+    /// alone in `scratch_base`).
     scratch: Vec<f64>,
+    scratch_base: Vec<f64>,
+    /// Statistics of the baseline events (known clearance), per grid point of "vehicle" then
+    /// of "event"; empty until the first one.
+    baseline: Vec<Stats>,
+    baseline_obs: f64,
+    /// Variance added to the model's misfit covariance T (ln units²), and added on top of it
+    /// once there is a baseline.
+    misfit_var: f64,
+    baseline_misfit_var: f64,
     /// Scratch: ln p(events | c_g) + ln prior(c_g), without the evidence power, per grid point.
     scratch_raw: Vec<f64>,
     /// Λ₀ and ln det Λ₀ per clearance grid point (η block T_c⁻¹ / k²).
@@ -239,6 +272,53 @@ pub fn fine_grid(clearance_mm: &[f64], refine: usize) -> (Vec<f64>, Vec<(usize, 
     ln_c.push(clearance_mm[n - 1].ln());
     pos.push((n - 2, 1.0));
     (ln_c, pos)
+}
+
+/// Λ₀ and ln det Λ₀ per clearance grid point: the coordinates' prior (variance 1/3 each) and
+/// the misfit's, T_c (the model's between-vehicle covariance) plus `misfit_var` on its
+/// diagonal, times `inflation2`.
+fn build_prior(
+    model: &LinearModel,
+    pos: &[(usize, f64)],
+    misfit_var: f64,
+    inflation2: f64,
+) -> anyhow::Result<Vec<(MatX, f64)>> {
+    let mut prior = Vec::with_capacity(pos.len());
+    for &p in pos {
+        let t = (model.between_at(p) + Matrix3::identity() * misfit_var) * inflation2;
+        let ch = t
+            .cholesky()
+            .ok_or_else(|| anyhow::anyhow!("nuisance model: misfit covariance not positive"))?;
+        let t_inv = ch.inverse();
+        let mut lam = MatX::zeros();
+        for i in 0..N_LIN {
+            lam[(i, i)] = 1.0 / COORD_VAR;
+        }
+        for i in 0..N_FEAT {
+            for j in 0..N_FEAT {
+                lam[(N_LIN + i, N_LIN + j)] = t_inv[(i, j)];
+            }
+        }
+        let ld_lam = -(N_LIN as f64) * COORD_VAR.ln() - ch.ln_determinant();
+        prior.push((lam, ld_lam));
+    }
+    Ok(prior)
+}
+
+/// The position of clearance `c_mm` on a clearance axis, as [`fine_grid`]'s positions are:
+/// (interval, fraction in ln c), clamped to the axis.
+pub fn axis_position(clearance_mm: &[f64], c_mm: f64) -> (usize, f64) {
+    let n = clearance_mm.len();
+    if n < 2 || c_mm <= clearance_mm[0] {
+        return (0, 0.0);
+    }
+    for ic in 0..n - 1 {
+        let (a, b) = (clearance_mm[ic], clearance_mm[ic + 1]);
+        if c_mm <= b {
+            return (ic, (c_mm / a).ln() / (b / a).ln());
+        }
+    }
+    (n - 2, 1.0)
 }
 
 /// Midpoints of `n` equal bins of [−1, 1].
@@ -313,28 +393,10 @@ impl LinearPosterior {
         };
         let n_quad = if model.has_phase() { EVENT_PHASES } else { 1 };
         let inflation2 = cfg.std_inflation * cfg.std_inflation;
-        let mut prior = Vec::with_capacity(pos.len());
-        for &p in &pos {
-            // The configured vehicle-level misfit (measured vehicles against the model's), and a
-            // small floor that keeps T invertible where the fit found none.
-            let floor = 1e-4 + cfg.misfit_std * cfg.misfit_std;
-            let t = (model.between_at(p) + Matrix3::identity() * floor) * inflation2;
-            let ch = t
-                .cholesky()
-                .ok_or_else(|| anyhow::anyhow!("nuisance model: misfit covariance not positive"))?;
-            let t_inv = ch.inverse();
-            let mut lam = MatX::zeros();
-            for i in 0..N_LIN {
-                lam[(i, i)] = 1.0 / COORD_VAR;
-            }
-            for i in 0..N_FEAT {
-                for j in 0..N_FEAT {
-                    lam[(N_LIN + i, N_LIN + j)] = t_inv[(i, j)];
-                }
-            }
-            let ld_lam = -(N_LIN as f64) * COORD_VAR.ln() - ch.ln_determinant();
-            prior.push((lam, ld_lam));
-        }
+        // The configured vehicle-level misfit (measured vehicles against the model's), and a
+        // small floor that keeps T invertible where the fit found none.
+        let misfit_var = 1e-4 + cfg.misfit_std * cfg.misfit_std;
+        let prior = build_prior(model, &pos, misfit_var, inflation2)?;
         let ng = pos.len();
         Ok(LinearPosterior {
             model: model.clone(),
@@ -345,6 +407,11 @@ impl LinearPosterior {
             basis_e: vec![Basis::default(); points_e.len() * n_quad],
             basis_e_mean: vec![Basis::default(); points_e.len()],
             scratch: vec![0.0; points_v.len().max(points_e.len())],
+            scratch_base: Vec::new(),
+            baseline: Vec::new(),
+            baseline_obs: 0.0,
+            misfit_var,
+            baseline_misfit_var: cfg.baseline_misfit_std * cfg.baseline_misfit_std,
             points_v,
             points_e,
             pos,
@@ -395,7 +462,60 @@ impl LinearPosterior {
     pub fn update(&mut self, z: [f64; N_FEAT], mask: &FeatureMask, v0_kmh: f64, decel_g: f64) {
         self.n_obs += mask.iter().filter(|&&m| m).count() as f64;
         let sp = bracket(&self.speed_kmh, v0_kmh);
-        // The event's term values at every grid point: they do not depend on the clearance.
+        self.event_basis(decel_g);
+        let (nv, ne) = (self.points_v.len(), self.points_e.len());
+        let (mut stats_v, mut stats_e) = (
+            std::mem::take(&mut self.stats_v),
+            std::mem::take(&mut self.stats_e),
+        );
+        for (g, &pos) in self.pos.iter().enumerate() {
+            let (sv, se) = (
+                &mut stats_v[g * nv..(g + 1) * nv],
+                &mut stats_e[g * ne..(g + 1) * ne],
+            );
+            self.add_at(pos, sp, &z, mask, sv, se);
+        }
+        (self.stats_v, self.stats_e) = (stats_v, stats_e);
+    }
+
+    /// Adds one event of the same vehicle at a known clearance, at `pos` on the table's
+    /// clearance axis ([`axis_position`]): a baseline event (module doc). Allocates the
+    /// baseline's statistics at the first one.
+    pub fn update_known(
+        &mut self,
+        z: [f64; N_FEAT],
+        mask: &FeatureMask,
+        v0_kmh: f64,
+        decel_g: f64,
+        pos: (usize, f64),
+    ) {
+        let (nv, ne) = (self.points_v.len(), self.points_e.len());
+        if self.baseline.is_empty() {
+            self.baseline = vec![Stats::zero(); nv + ne];
+            self.scratch_base = vec![0.0; nv.max(ne)];
+            if self.baseline_misfit_var > 0.0 {
+                let var = self.misfit_var + self.baseline_misfit_var;
+                if let Ok(p) = build_prior(&self.model, &self.pos, var, self.inflation2) {
+                    self.prior = p;
+                }
+            }
+        }
+        self.baseline_obs += mask.iter().filter(|&&m| m).count() as f64;
+        let sp = bracket(&self.speed_kmh, v0_kmh);
+        self.event_basis(decel_g);
+        let mut base = std::mem::take(&mut self.baseline);
+        let (bv, be) = base.split_at_mut(nv);
+        self.add_at(pos, sp, &z, mask, bv, be);
+        self.baseline = base;
+    }
+
+    /// Baseline events added ([`Self::update_known`]), as features observed.
+    pub fn baseline_features(&self) -> f64 {
+        self.baseline_obs
+    }
+
+    /// The event's term values at every grid point (they do not depend on the clearance).
+    fn event_basis(&mut self, decel_g: f64) {
         for (b, x) in self.basis_v.iter_mut().zip(&self.points_v) {
             self.model.basis_into(x, decel_g, b);
         }
@@ -412,40 +532,49 @@ impl LinearPosterior {
                 &mut self.basis_e_mean[i],
             );
         }
-        let (nv, ne) = (self.points_v.len(), self.points_e.len());
+    }
+
+    /// Adds one event (its term values from [`Self::event_basis`]) at clearance position `pos`
+    /// to the statistics `sv` (grid points of "vehicle") and `se` (of "event").
+    fn add_at(
+        &self,
+        pos: (usize, f64),
+        sp: (usize, f64),
+        z: &[f64; N_FEAT],
+        mask: &FeatureMask,
+        sv: &mut [Stats],
+        se: &mut [Stats],
+    ) {
+        let n_quad = self.basis_e.len() / self.points_e.len().max(1);
         let mut coefs = Coefs::default();
-        for g in 0..self.pos.len() {
-            self.model.coef_interp(self.pos[g], sp, &mut coefs);
-            // The event scatter depends on the clearance only: one inverse per grid clearance.
-            let sigma = self.model.within_at(self.pos[g]) * self.inflation2;
-            if nv > 0 {
-                let Some((w, ld)) = masked_inverse(&sigma, mask) else {
-                    continue;
-                };
-                for (st, b) in self.stats_v[g * nv..(g + 1) * nv]
-                    .iter_mut()
-                    .zip(&self.basis_v)
-                {
-                    let pr = self.model.predict_with(&coefs, b);
-                    st.add(&pr, &z, mask, &w, ld);
-                }
+        self.model.coef_interp(pos, sp, &mut coefs);
+        // The event scatter depends on the clearance only: one inverse per clearance.
+        let sigma = self.model.within_at(pos) * self.inflation2;
+        if !sv.is_empty() {
+            // A scatter the mask leaves singular: the event adds nothing at this clearance.
+            let Some((w, ld)) = masked_inverse(&sigma, mask) else {
+                return;
+            };
+            for (st, b) in sv.iter_mut().zip(&self.basis_v) {
+                let pr = self.model.predict_with(&coefs, b);
+                st.add(&pr, z, mask, &w, ld);
             }
-            for q in 0..ne {
-                // Δ new in this event: the mean of the prediction over Δ (the law is linear in
-                // its terms, so the mean event's terms give it) and its covariance.
-                let mean = self.model.predict_with(&coefs, &self.basis_e_mean[q]);
-                let am = nalgebra::Vector3::from(mean.a);
-                let mut var = Matrix3::<f64>::zeros();
-                for b in &self.basis_e[q * n_quad..(q + 1) * n_quad] {
-                    let d = nalgebra::Vector3::from(self.model.mean_with(&coefs, b)) - am;
-                    var += d * d.transpose();
-                }
-                var /= n_quad as f64;
-                let Some((w, ld)) = masked_inverse(&(sigma + var), mask) else {
-                    continue;
-                };
-                self.stats_e[g * ne + q].add(&mean, &z, mask, &w, ld);
+        }
+        for (q, st) in se.iter_mut().enumerate() {
+            // Δ new in this event: the mean of the prediction over Δ (the law is linear in
+            // its terms, so the mean event's terms give it) and its covariance.
+            let mean = self.model.predict_with(&coefs, &self.basis_e_mean[q]);
+            let am = nalgebra::Vector3::from(mean.a);
+            let mut var = Matrix3::<f64>::zeros();
+            for b in &self.basis_e[q * n_quad..(q + 1) * n_quad] {
+                let d = nalgebra::Vector3::from(self.model.mean_with(&coefs, b)) - am;
+                var += d * d.transpose();
             }
+            var /= n_quad as f64;
+            let Some((w, ld)) = masked_inverse(&(sigma + var), mask) else {
+                continue;
+            };
+            st.add(&mean, z, mask, &w, ld);
         }
     }
 
@@ -457,34 +586,52 @@ impl LinearPosterior {
         let mut mx_raw = f64::NEG_INFINITY;
         let mut min_dev = f64::INFINITY;
         let (nv, ne) = (self.points_v.len(), self.points_e.len());
+        let has_base = !self.baseline.is_empty();
         for (g, o) in out.iter_mut().enumerate().take(self.pos.len()) {
             let (lam, ld_lam) = &self.prior[g];
-            let mut l_v = f64::NEG_INFINITY;
-            if nv > 0 {
-                for q in 0..nv {
-                    let (l, dev) = self.stats_v[g * nv + q].evidence(lam, *ld_lam);
+            // ln p per grid point of the events (with the baseline's: joint), and of the
+            // baseline alone; the deviance is the events' given the baseline.
+            let mut hyp = |stats: &[Stats], base: &[Stats]| -> (f64, f64) {
+                if stats.is_empty() {
+                    return (f64::NEG_INFINITY, f64::NEG_INFINITY);
+                }
+                for (q, st) in stats.iter().enumerate() {
+                    let (l, dev) = if has_base {
+                        let (lb, devb) = base[q].evidence(lam, *ld_lam);
+                        self.scratch_base[q] = lb;
+                        let (l, dev) = st.plus(&base[q]).evidence(lam, *ld_lam);
+                        (l, dev - devb)
+                    } else {
+                        st.evidence(lam, *ld_lam)
+                    };
                     self.scratch[q] = l;
                     min_dev = min_dev.min(dev);
                 }
-                l_v = log_mean_exp(&self.scratch[..nv]);
-            }
-            let mut l_e = f64::NEG_INFINITY;
-            if ne > 0 {
-                for q in 0..ne {
-                    let (l, dev) = self.stats_e[g * ne + q].evidence(lam, *ld_lam);
-                    self.scratch[q] = l;
-                    min_dev = min_dev.min(dev);
-                }
-                l_e = log_mean_exp(&self.scratch[..ne]);
-            }
-            // Equal prior weight on the hypotheses that are in use.
-            let l = match (nv > 0, ne > 0) {
-                (true, true) => log_mean_exp(&[l_v, l_e]),
-                (true, false) => l_v,
-                _ => l_e,
+                let n = stats.len();
+                let lb = if has_base {
+                    log_mean_exp(&self.scratch_base[..n])
+                } else {
+                    0.0
+                };
+                (log_mean_exp(&self.scratch[..n]), lb)
             };
+            let (base_v, base_e) = if has_base {
+                self.baseline.split_at(nv)
+            } else {
+                (&[][..], &[][..])
+            };
+            let (l_v, lb_v) = hyp(&self.stats_v[g * nv..(g + 1) * nv], base_v);
+            let (l_e, lb_e) = hyp(&self.stats_e[g * ne..(g + 1) * ne], base_e);
+            // Equal prior weight on the hypotheses that are in use; with a baseline, less the
+            // baseline's own evidence (the conditional evidence, module doc).
+            let (l, lb) = match (nv > 0, ne > 0) {
+                (true, true) => (log_mean_exp(&[l_v, l_e]), log_mean_exp(&[lb_v, lb_e])),
+                (true, false) => (l_v, lb_v),
+                _ => (l_e, lb_e),
+            };
+            let l = if has_base { l - lb } else { l };
             self.share_v[g] = if l.is_finite() {
-                0.5 * (l_v - l).exp()
+                0.5 * (l_v - lb - l).exp()
             } else {
                 0.5
             };

@@ -207,6 +207,11 @@ impl<S: EventStage> Monitor<S> {
         &self.stage
     }
 
+    /// The event stage, to change (e.g. give its estimator a baseline before the logs).
+    pub fn stage_mut(&mut self) -> &mut S {
+        &mut self.stage
+    }
+
     /// The odometer now (km since the start of the run).
     pub fn odometer_km(&self) -> f64 {
         self.odometer_km

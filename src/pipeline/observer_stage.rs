@@ -93,6 +93,26 @@ pub struct Saved {
     pub evidence: Vec<Evidence>,
     /// Used events older than the kept evidence (not replayed at restore).
     pub evidence_dropped: u64,
+    /// The vehicle's baseline (events at a known clearance), when it has one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub baseline: Option<Baseline>,
+}
+
+/// Events of the vehicle at a known clearance (its first ones after the joints were
+/// replaced): what they say about the vehicle conditions every later estimate
+/// ([`crate::observer::estimator::Estimator::update_baseline`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Baseline {
+    /// The joints' clearance when the events were driven (mm).
+    pub clearance_mm: f64,
+    pub evidence: Vec<Evidence>,
+}
+
+/// How many baseline events each estimator took.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct BaselineUse {
+    pub angle_events: u32,
+    pub torque_events: u32,
 }
 
 /// [`EventStage`] over the real observer.
@@ -106,6 +126,7 @@ pub struct ObserverStage {
     evidence: VecDeque<Evidence>,
     evidence_dropped: u64,
     odometer_km: f64,
+    baseline: Option<Baseline>,
 }
 
 impl ObserverStage {
@@ -126,7 +147,62 @@ impl ObserverStage {
             evidence: VecDeque::new(),
             evidence_dropped: 0,
             odometer_km: 0.0,
+            baseline: None,
         })
+    }
+
+    /// The used events kept (oldest first), as the estimators took them.
+    pub fn evidence(&self) -> impl Iterator<Item = &Evidence> {
+        self.evidence.iter()
+    }
+
+    /// Gives the estimators a baseline: `baseline`'s events, at its known clearance, condition
+    /// every estimate from now on (and after a restore). Replaces an earlier baseline's
+    /// evidence only at the next restore; call it before the first event. Returns how many
+    /// events each estimator took (none without a table, or with the `"mixture"` method).
+    pub fn set_baseline(&mut self, baseline: Baseline) -> BaselineUse {
+        let used = self.apply_baseline(&baseline);
+        self.baseline = Some(baseline);
+        used
+    }
+
+    fn apply_baseline(&mut self, b: &Baseline) -> BaselineUse {
+        let mut used = BaselineUse::default();
+        if !self.has_table {
+            return used;
+        }
+        for ev in &b.evidence {
+            if let (true, Some((est, table))) = (
+                ev.rms_deg.is_finite() && ev.peak_deg.is_finite(),
+                self.obs.estimator_mut(),
+            ) {
+                if est.update_baseline(
+                    table,
+                    ev.rms_deg,
+                    ev.peak_deg,
+                    ev.cruise_rms_deg,
+                    ev.v0_kmh,
+                    ev.decel_g,
+                    b.clearance_mm,
+                ) {
+                    used.angle_events += 1;
+                }
+            }
+            if let (Some(t), Some((est, table))) = (ev.torque_nm, self.obs.torque_estimator_mut()) {
+                if est.update_baseline(
+                    table,
+                    t.rms,
+                    t.peak,
+                    t.cruise_rms,
+                    ev.v0_kmh,
+                    ev.decel_g,
+                    b.clearance_mm,
+                ) {
+                    used.torque_events += 1;
+                }
+            }
+        }
+        used
     }
 
     /// Adds the torsion-bar torque's response table ([`Observer::with_torque_table`]).
@@ -283,6 +359,7 @@ impl EventStage for ObserverStage {
         serde_json::to_value(Saved {
             evidence: self.evidence.iter().copied().collect(),
             evidence_dropped: self.evidence_dropped,
+            baseline: self.baseline.clone(),
         })
         .ok()
     }
@@ -299,6 +376,10 @@ impl EventStage for ObserverStage {
         self.obs.reset_estimator()?;
         self.evidence.clear();
         self.evidence_dropped = saved.evidence_dropped;
+        self.baseline = saved.baseline.clone();
+        if let Some(b) = saved.baseline {
+            self.apply_baseline(&b);
+        }
         for ev in &saved.evidence {
             let angle_ok = ev.rms_deg.is_finite() && ev.peak_deg.is_finite();
             let torque_ok = ev
@@ -375,5 +456,62 @@ mod tests {
         assert_eq!(feed(&mut stage, cycles), cycles);
         assert_eq!(stage.obs.events().len(), crate::observer::MAX_EVENTS_KEPT);
         assert!(stage.estimate().is_none(), "no table: no estimate");
+    }
+
+    fn reference_table() -> ResponseTable {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/config/vehicles/shimmy_reference/table.json"
+        );
+        ResponseTable::load(std::path::Path::new(path)).unwrap()
+    }
+
+    fn evidence(i: usize, level: f64) -> Evidence {
+        let k = level * (1.0 + 0.1 * ((i * 7 % 11) as f64 / 10.0 - 0.5));
+        Evidence {
+            rms_deg: 0.09 * k,
+            peak_deg: 0.24 * k,
+            cruise_rms_deg: Some(0.035 * k),
+            v0_kmh: 35.0 + (i * 13 % 60) as f64,
+            decel_g: 0.3 + 0.5 * ((i * 5 % 9) as f64 / 8.0),
+            odometer_m: 1000.0 * i as f64,
+            torque_nm: None,
+        }
+    }
+
+    /// A baseline conditions the estimate, is kept in the saved state and applied again at a
+    /// restore: the restored stage estimates what the saved one did.
+    #[test]
+    fn a_baseline_survives_save_and_restore() {
+        let table = reference_table();
+        let cfg = ObserverConfig::default();
+        let baseline = Baseline {
+            clearance_mm: 0.03,
+            evidence: (0..8).map(|i| evidence(i + 3, 0.6)).collect(),
+        };
+        let mut with = ObserverStage::new(&cfg, Some(table.clone())).unwrap();
+        let used = with.set_baseline(baseline.clone());
+        assert_eq!(used.angle_events, 8);
+        let mut plain = ObserverStage::new(&cfg, Some(table.clone())).unwrap();
+        for i in 0..20 {
+            with.apply(&evidence(i, 1.0));
+            plain.apply(&evidence(i, 1.0));
+        }
+        let (e_with, e_plain) = (with.estimate().unwrap(), plain.estimate().unwrap());
+        assert_ne!(
+            e_with.interval_mm, e_plain.interval_mm,
+            "the baseline changed nothing"
+        );
+        let saved = with.save().unwrap();
+        assert!(saved.get("baseline").is_some(), "{saved}");
+        let mut restored = ObserverStage::new(&cfg, Some(table)).unwrap();
+        restored.restore(&saved).unwrap();
+        assert_eq!(restored.estimate().unwrap(), e_with);
+        // A state without a baseline (written before there were baselines) restores as before.
+        let mut old = saved.clone();
+        old.as_object_mut().unwrap().remove("baseline");
+        let mut r2 = ObserverStage::new(&cfg, Some(reference_table())).unwrap();
+        r2.restore(&old).unwrap();
+        assert_eq!(r2.estimate().unwrap(), e_plain);
     }
 }
