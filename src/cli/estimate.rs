@@ -274,8 +274,9 @@ pub fn estimate_files_with(
     Ok((out, feeder.stats))
 }
 
-/// The used events of the baseline logs, through the same pipeline as the logs.
-fn baseline_of(
+/// The used events of the baseline logs, through the same pipeline as the logs (shimmyd's
+/// `vehicle.baseline_logs` too).
+pub fn baseline_of(
     mapping_path: &Path,
     dbc: Option<&Path>,
     tables: crate::pipeline::Tables,

@@ -138,9 +138,22 @@ pub struct VehicleSection {
     /// carries a live torque the estimate comes from it, else from the angle table.
     #[serde(default)]
     pub torque_table: Option<PathBuf>,
+    /// Logs of this vehicle driven when its joints' clearance was known (its first drives
+    /// after a joint replacement): their braking events become the vehicle's baseline, which
+    /// conditions every estimate (`shimmy estimate --baseline`; docs/ACCURACY.md). Read at
+    /// start; while set it takes the place of a baseline the saved state holds.
+    #[serde(default)]
+    pub baseline_logs: Vec<PathBuf>,
+    /// The joints' clearance during the `baseline_logs` (mm).
+    #[serde(default = "default_baseline_clearance_mm")]
+    pub baseline_clearance_mm: f64,
     /// Odometer at first start when no state exists yet (km).
     #[serde(default)]
     pub initial_odometer_km: f64,
+}
+
+fn default_baseline_clearance_mm() -> f64 {
+    0.03
 }
 
 /// `[events]`: which brake applications count (article §2.1.2 validity range).
@@ -508,6 +521,7 @@ impl Config {
         if let Some(p) = self.vehicle.torque_table.as_mut() {
             fix(p);
         }
+        self.vehicle.baseline_logs.iter_mut().for_each(fix);
         if let Some(p) = self.monitor.as_mut() {
             fix(p);
         }
@@ -552,6 +566,18 @@ impl Config {
                     bail!("{key}: file {} does not exist", p.display());
                 }
             }
+        }
+        for (i, p) in self.vehicle.baseline_logs.iter().enumerate() {
+            if !p.is_file() {
+                bail!(
+                    "vehicle.baseline_logs[{i}]: file {} does not exist",
+                    p.display()
+                );
+            }
+        }
+        let c = self.vehicle.baseline_clearance_mm;
+        if !(c > 0.0 && c.is_finite()) {
+            bail!("vehicle.baseline_clearance_mm: {c} is not a clearance above 0 mm");
         }
         for (i, name) in self.input.interfaces.iter().enumerate() {
             if name.is_empty() || name.len() > 15 || name.contains('/') {

@@ -52,7 +52,46 @@ pub fn for_config(cfg: &Config) -> anyhow::Result<Box<dyn EventStage>> {
         }
         None => None,
     };
-    Ok(Box::new(
-        ObserverStage::new(&cfg.settings, table)?.with_torque_table(torque)?,
-    ))
+    let has_table = table.is_some() || torque.is_some();
+    let tables = crate::pipeline::Tables {
+        angle: table,
+        torque,
+    };
+    let mut stage = ObserverStage::new(&cfg.settings, tables.angle.clone())?
+        .with_torque_table(tables.torque.clone())?;
+    if !cfg.vehicle.baseline_logs.is_empty() {
+        anyhow::ensure!(
+            has_table,
+            "vehicle.baseline_logs: a baseline needs a response table (vehicle.table or \
+             vehicle.torque_table)"
+        );
+        let (dbc, mapping) = cfg.bus_files().ok_or_else(|| {
+            anyhow::anyhow!(
+                "vehicle.baseline_logs: the car's DBC and mapping must be known (input.profile, \
+                 or input.dbc and input.mapping) to read them"
+            )
+        })?;
+        let logs = crate::cli::estimate::BaselineLogs {
+            logs: cfg.vehicle.baseline_logs.clone(),
+            clearance_mm: cfg.vehicle.baseline_clearance_mm,
+        };
+        let b = crate::cli::estimate::baseline_of(
+            mapping,
+            Some(dbc),
+            tables,
+            cfg.settings.clone(),
+            &logs,
+        )
+        .context("vehicle.baseline_logs")?;
+        let used = stage.set_baseline(b);
+        eprintln!(
+            "shimmyd: baseline: {} event(s) of vehicle.baseline_logs at {} mm (angle {}, \
+             torque {})",
+            used.angle_events.max(used.torque_events),
+            cfg.vehicle.baseline_clearance_mm,
+            used.angle_events,
+            used.torque_events
+        );
+    }
+    Ok(Box::new(stage))
 }

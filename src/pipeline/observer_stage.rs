@@ -376,8 +376,11 @@ impl EventStage for ObserverStage {
         self.obs.reset_estimator()?;
         self.evidence.clear();
         self.evidence_dropped = saved.evidence_dropped;
-        self.baseline = saved.baseline.clone();
-        if let Some(b) = saved.baseline {
+        // A baseline given now (set before the restore) takes the place of the saved one.
+        if self.baseline.is_none() {
+            self.baseline = saved.baseline.clone();
+        }
+        if let Some(b) = self.baseline.clone() {
             self.apply_baseline(&b);
         }
         for ev in &saved.evidence {
