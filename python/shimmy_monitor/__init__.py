@@ -104,23 +104,34 @@ def estimate(
     logs: Union[PathLike, Sequence[PathLike]],
     profile: str,
     config: Optional[PathLike] = None,
+    baseline: Union[PathLike, Sequence[PathLike], None] = None,
+    baseline_clearance_mm: float = 0.03,
 ) -> dict:
     """Estimate the steering-joint clearance from one vehicle's logs.
 
-    Exactly ``shimmy estimate --profile PROFILE [--config CONFIG] --format json LOG...``: the
-    same Rust code path and the same JSON document, returned as a dict (``profile``,
-    ``clearance_mm``, ``interval_mm``, ``detectable``, ``below_mm``, ``verdict``, ``events``,
-    ``events_used``, ``rejections``, ``p_clearance_above_threshold``, ``alerts``, ...;
+    Exactly ``shimmy estimate --profile PROFILE [--config CONFIG] [--baseline B ...
+    --baseline-clearance-mm C] --format json LOG...``: the same Rust code path and the same
+    JSON document, returned as a dict (``profile``, ``clearance_mm``, ``interval_mm``,
+    ``detectable``, ``below_mm``, ``verdict``, ``events``, ``events_used``, ``rejections``,
+    ``p_clearance_above_threshold``, ``alerts``, ``baseline`` when one was given, ...;
     ``shimmy estimate --help`` describes every key).
 
     :param logs: the vehicle's logs, in time order.
     :param profile: a vehicle profile (name, alias or folder).
     :param config: the monitor's settings (TOML, as config/observer.toml).
-    :raises ShimmyError: unknown profile, a log that is missing or cannot be read.
+    :param baseline: logs of the same vehicle driven at a known clearance (its first drives
+        after a joint replacement); their braking events condition the estimate.
+    :param baseline_clearance_mm: the joints' clearance during the baseline logs (mm).
+    :raises ShimmyError: unknown profile, a log that is missing or cannot be read, a baseline
+        without a usable braking event.
     """
     return json.loads(
         _native.estimate_json(
-            _paths(logs), profile, None if config is None else os.fspath(config)
+            _paths(logs),
+            profile,
+            None if config is None else os.fspath(config),
+            [] if baseline is None else _paths(baseline),
+            float(baseline_clearance_mm),
         )
     )
 

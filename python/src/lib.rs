@@ -259,6 +259,16 @@ impl StreamHandle {
 }
 
 fn estimate_args(logs: Vec<PathBuf>, profile: String, config: Option<PathBuf>) -> estimate::Args {
+    estimate_args_with(logs, profile, config, Vec::new(), 0.03)
+}
+
+fn estimate_args_with(
+    logs: Vec<PathBuf>,
+    profile: String,
+    config: Option<PathBuf>,
+    baseline_logs: Vec<PathBuf>,
+    baseline_clearance_mm: f64,
+) -> estimate::Args {
     estimate::Args {
         profile: Some(profile),
         mapping: None,
@@ -269,24 +279,31 @@ fn estimate_args(logs: Vec<PathBuf>, profile: String, config: Option<PathBuf>) -
         angle_only: false,
         config,
         format: TextOrJson::Json,
-        baseline_logs: Vec::new(),
-        baseline_clearance_mm: 0.03,
+        baseline_logs,
+        baseline_clearance_mm,
         logs,
     }
 }
 
-/// `shimmy estimate --profile PROFILE [--config CONFIG] --format json LOG...`: the JSON document.
+/// `shimmy estimate --profile PROFILE [--config CONFIG] [--baseline B ...
+/// --baseline-clearance-mm C] --format json LOG...`: the JSON document.
 #[pyfunction]
-#[pyo3(signature = (logs, profile, config=None))]
+#[pyo3(signature = (logs, profile, config=None, baseline=Vec::new(), baseline_clearance_mm=0.03))]
 fn estimate_json(
     py: Python<'_>,
     logs: Vec<PathBuf>,
     profile: String,
     config: Option<PathBuf>,
+    baseline: Vec<PathBuf>,
+    baseline_clearance_mm: f64,
 ) -> PyResult<String> {
     guarded(py, move || {
         anyhow::ensure!(!logs.is_empty(), "no logs given");
-        let args = estimate_args(logs, profile, config);
+        anyhow::ensure!(
+            baseline_clearance_mm > 0.0 && baseline_clearance_mm.is_finite(),
+            "baseline_clearance_mm must be a clearance above 0 mm, not {baseline_clearance_mm}"
+        );
+        let args = estimate_args_with(logs, profile, config, baseline, baseline_clearance_mm);
         let (profile, est, _stats) = estimate::evaluate(&args)?;
         Ok(estimate::output_json(profile.as_ref(), &est)?)
     })

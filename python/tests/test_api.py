@@ -121,6 +121,17 @@ def test_estimate_equals_the_cli_json(shimmy_bin, sim_logs):
     assert len(got["events"]) == 12
 
 
+def test_estimate_with_a_baseline_equals_the_cli_json(shimmy_bin, sim_logs):
+    base, log = sim_logs[0], sim_logs[1]
+    got = sm.estimate(str(log), "toyota_rav4", baseline=str(base), baseline_clearance_mm=0.05)
+    out = run_cli(shimmy_bin, "estimate", "--profile", "toyota_rav4", "--format", "json",
+                  "--baseline", base, "--baseline-clearance-mm", "0.05", log)
+    assert got == json.loads(out.stdout)
+    assert got["baseline"]["clearance_mm"] == 0.05 and got["baseline"]["angle_events"] >= 1
+    with pytest.raises(sm.ShimmyError):
+        sm.estimate(str(log), "toyota_rav4", baseline=str(base), baseline_clearance_mm=0.0)
+
+
 def test_export_writes_what_the_cli_writes(shimmy_bin, sim_logs, tmp_path):
     logs = [str(l) for l in sim_logs]
     a, b = tmp_path / "py", tmp_path / "cli"

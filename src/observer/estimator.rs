@@ -496,15 +496,12 @@ impl Estimator {
             }
             j
         };
-        let (rms_deg, peak_deg) = (rms_deg / g, peak_deg / g);
-        let z = super::features::z(rms_deg, peak_deg);
-        let zc = cruise_rms_deg.map(|c| super::features::z_cruise(c / g));
+        let (z3, mask) = self.features(rms_deg, peak_deg, cruise_rms_deg);
+        let (z, zc) = ([z3[0], z3[1]], mask[2].then_some(z3[2]));
         if let Some(lp) = self.linear.as_mut() {
             if let Some(d) = dist_km {
                 lp.forget(d);
             }
-            let mask = [self.use_rms, self.use_peak, zc.is_some()];
-            let z3 = [z[0], z[1], zc.unwrap_or(0.0)];
             lp.update(z3, &mask, v0_kmh, decel_g);
             lp.add_ln_jacobian(ln_jac);
             lp.probabilities_into(&mut self.marg, &self.log_prior);
@@ -541,20 +538,33 @@ impl Estimator {
         decel_g: f64,
         clearance_mm: f64,
     ) -> bool {
-        let g = self.cfg.transfer_gain;
         let cruise_rms_deg = cruise_rms_deg.filter(|_| self.cfg.cruise && table.cruise);
-        let z = super::features::z(rms_deg / g, peak_deg / g);
-        let zc = cruise_rms_deg.map(|c| super::features::z_cruise(c / g));
+        let (z3, mask) = self.features(rms_deg, peak_deg, cruise_rms_deg);
         let Some(lp) = self.linear.as_mut() else {
             return false;
         };
-        let mask = [self.use_rms, self.use_peak, zc.is_some()];
-        let z3 = [z[0], z[1], zc.unwrap_or(0.0)];
         let pos = super::marginal::axis_position(&table.clearance_mm, clearance_mm);
         lp.update_known(z3, &mask, v0_kmh, decel_g, pos);
         lp.probabilities_into(&mut self.marg, &self.log_prior);
         self.baseline_events += 1;
         true
+    }
+
+    /// An event's features as the table reads them (ln RMS, ln peak, ln cruise RMS after the
+    /// transfer gain) and which of them enter (the cruise when measured).
+    fn features(
+        &self,
+        rms_deg: f64,
+        peak_deg: f64,
+        cruise_rms_deg: Option<f64>,
+    ) -> ([f64; 3], [bool; 3]) {
+        let g = self.cfg.transfer_gain;
+        let z = super::features::z(rms_deg / g, peak_deg / g);
+        let zc = cruise_rms_deg.map(|c| super::features::z_cruise(c / g));
+        (
+            [z[0], z[1], zc.unwrap_or(0.0)],
+            [self.use_rms, self.use_peak, zc.is_some()],
+        )
     }
 
     /// Baseline events added ([`Self::update_baseline`]).
