@@ -122,7 +122,7 @@ pub struct Input {
 }
 
 /// `[vehicle]`.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct VehicleSection {
     /// Vehicle parameters of the shimmy model (config/vehicle/*.toml); MODEL.md §9 defaults when
@@ -154,6 +154,20 @@ pub struct VehicleSection {
 
 fn default_baseline_clearance_mm() -> f64 {
     0.03
+}
+
+/// A configuration without `[vehicle]` (or with an empty one) has what each key defaults to.
+impl Default for VehicleSection {
+    fn default() -> Self {
+        VehicleSection {
+            params: None,
+            table: None,
+            torque_table: None,
+            baseline_logs: Vec::new(),
+            baseline_clearance_mm: default_baseline_clearance_mm(),
+            initial_odometer_km: 0.0,
+        }
+    }
 }
 
 /// `[events]`: which brake applications count (article §2.1.2 validity range).

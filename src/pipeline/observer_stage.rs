@@ -26,6 +26,7 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use crate::monitor::{Estimate, EventStage, EventSummary, RejectionSummary, Sample};
+use crate::observer::estimator::Estimator;
 use crate::observer::table::ResponseTable;
 use crate::observer::{EventOut, Observer, ObserverConfig};
 
@@ -172,37 +173,45 @@ impl ObserverStage {
             return used;
         }
         for ev in &b.evidence {
-            if let (true, Some((est, table))) = (
-                ev.rms_deg.is_finite() && ev.peak_deg.is_finite(),
-                self.obs.estimator_mut(),
-            ) {
-                if est.update_baseline(
+            let (angle, torque) = self.route(ev, |est, table, rms, peak, cruise| {
+                est.update_baseline(
                     table,
-                    ev.rms_deg,
-                    ev.peak_deg,
-                    ev.cruise_rms_deg,
+                    rms,
+                    peak,
+                    cruise,
                     ev.v0_kmh,
                     ev.decel_g,
                     b.clearance_mm,
-                ) {
-                    used.angle_events += 1;
-                }
-            }
-            if let (Some(t), Some((est, table))) = (ev.torque_nm, self.obs.torque_estimator_mut()) {
-                if est.update_baseline(
-                    table,
-                    t.rms,
-                    t.peak,
-                    t.cruise_rms,
-                    ev.v0_kmh,
-                    ev.decel_g,
-                    b.clearance_mm,
-                ) {
-                    used.torque_events += 1;
-                }
-            }
+                )
+            });
+            used.angle_events += u32::from(angle);
+            used.torque_events += u32::from(torque);
         }
         used
+    }
+
+    /// Hands one event's features to the estimators that can take them: the angle's when its
+    /// angle features are finite, the torque's when it has torque features. `feed(estimator,
+    /// table, rms, peak, cruise rms)` says whether it took them; returns (angle, torque).
+    fn route(
+        &mut self,
+        ev: &Evidence,
+        mut feed: impl FnMut(&mut Estimator, &ResponseTable, f64, f64, Option<f64>) -> bool,
+    ) -> (bool, bool) {
+        let angle = match (
+            ev.rms_deg.is_finite() && ev.peak_deg.is_finite(),
+            self.obs.estimator_mut(),
+        ) {
+            (true, Some((est, table))) => {
+                feed(est, table, ev.rms_deg, ev.peak_deg, ev.cruise_rms_deg)
+            }
+            _ => false,
+        };
+        let torque = match (ev.torque_nm, self.obs.torque_estimator_mut()) {
+            (Some(t), Some((est, table))) => feed(est, table, t.rms, t.peak, t.cruise_rms),
+            _ => false,
+        };
+        (angle, torque)
     }
 
     /// Adds the torsion-bar torque's response table ([`Observer::with_torque_table`]).
@@ -267,31 +276,18 @@ impl ObserverStage {
         if !self.has_table {
             return;
         }
-        if let (true, Some((est, table))) = (
-            ev.rms_deg.is_finite() && ev.peak_deg.is_finite(),
-            self.obs.estimator_mut(),
-        ) {
+        self.route(ev, |est, table, rms, peak, cruise| {
             est.update_event(
                 table,
-                ev.rms_deg,
-                ev.peak_deg,
-                ev.cruise_rms_deg,
+                rms,
+                peak,
+                cruise,
                 ev.v0_kmh,
                 ev.decel_g,
                 ev.odometer_m,
             );
-        }
-        if let (Some(t), Some((est, table))) = (ev.torque_nm, self.obs.torque_estimator_mut()) {
-            est.update_event(
-                table,
-                t.rms,
-                t.peak,
-                t.cruise_rms,
-                ev.v0_kmh,
-                ev.decel_g,
-                ev.odometer_m,
-            );
-        }
+            true
+        });
         if self.evidence.len() >= MAX_EVIDENCE {
             self.evidence.pop_front();
             self.evidence_dropped += 1;
