@@ -6,27 +6,9 @@
 use shimmy::observer::estimator::{Estimator, EstimatorConfig};
 use shimmy::observer::table::ResponseTable;
 
-fn table() -> ResponseTable {
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/config/vehicles/shimmy_reference/table.json"
-    );
-    ResponseTable::load(std::path::Path::new(path)).expect("the shipped reference table loads")
-}
-
-/// `n` events of one vehicle whose features are `level` times a worn vehicle's: (rms, peak,
-/// cruise rms) in deg, initial speed, deceleration.
-fn events(n: usize, level: f64, shift: usize) -> Vec<([f64; 3], f64, f64)> {
-    (0..n)
-        .map(|i| {
-            let j = i + shift;
-            let k = level * (1.0 + 0.15 * ((j * 7 % 11) as f64 / 10.0 - 0.5));
-            let v = 35.0 + (j * 13 % 60) as f64;
-            let d = 0.3 + 0.5 * ((j * 5 % 9) as f64 / 8.0);
-            ([0.09 * k, 0.24 * k, 0.035 * k], v, d)
-        })
-        .collect()
-}
+#[path = "support/synthetic_events.rs"]
+mod synthetic_events;
+use synthetic_events::{events, reference_table as table};
 
 /// The estimator after `base` events at clearance `c_base_mm` (as baseline) and `now` events,
 /// every feature read `scale` times as large.

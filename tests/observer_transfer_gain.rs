@@ -7,25 +7,13 @@ use shimmy::observer::estimator::{Estimator, EstimatorConfig};
 use shimmy::observer::features::{ln_jacobian_gain, Z_FLOOR_DEG};
 use shimmy::observer::table::ResponseTable;
 
-fn table() -> ResponseTable {
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/config/vehicles/shimmy_reference/table.json"
-    );
-    ResponseTable::load(std::path::Path::new(path)).expect("the shipped reference table loads")
-}
+#[path = "support/synthetic_events.rs"]
+mod synthetic_events;
+use synthetic_events::reference_table as table;
 
-/// Thirty events of a worn vehicle on the table's vehicle: (rms, peak, cruise rms) in deg,
-/// initial speed, deceleration.
+/// Thirty events of a worn vehicle on the table's vehicle.
 fn events() -> Vec<([f64; 3], f64, f64)> {
-    (0..30)
-        .map(|i| {
-            let k = 1.0 + 0.15 * ((i * 7 % 11) as f64 / 10.0 - 0.5);
-            let v = 35.0 + (i * 13 % 60) as f64;
-            let d = 0.3 + 0.5 * ((i * 5 % 9) as f64 / 8.0);
-            ([0.09 * k, 0.24 * k, 0.035 * k], v, d)
-        })
-        .collect()
+    synthetic_events::events(30, 1.0, 0)
 }
 
 fn run(t: &ResponseTable, gain: f64, scale: f64) -> Estimator {

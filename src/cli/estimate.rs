@@ -240,28 +240,16 @@ pub fn estimate_files_with(
             tables.clone(),
             cfg.clone(),
             b,
+            TOOL,
         )?),
         None => None,
     };
+    let mut off = Offline::open(mapping_path, dbc, tables, cfg, TOOL)?;
+    let base_use = base.map(|b| off.monitor.stage_mut().set_baseline(b));
+    feed_logs(&mut off, logs, "log", TOOL)?;
     let Offline {
-        mut feeder,
-        mut monitor,
-        ..
-    } = Offline::open(mapping_path, dbc, tables, cfg, "shimmy estimate")?;
-    let base_use = base.map(|b| monitor.stage_mut().set_baseline(b));
-    for log in logs {
-        let mut src =
-            LogReader::open(log).with_context(|| format!("cannot open log {}", log.display()))?;
-        feeder
-            .feed_source(&mut src, |s| {
-                monitor.push(s);
-            })
-            .with_context(|| format!("log {}", log.display()))?;
-        for s in src.take_skips() {
-            eprintln!("shimmy estimate: skipped {}: {}", s.location, s.reason);
-        }
-    }
-    monitor.finish();
+        feeder, monitor, ..
+    } = off;
     let out = Estimation {
         report: monitor.stage().observer().report(),
         alerts: monitor.standing().to_vec(),
@@ -274,33 +262,42 @@ pub fn estimate_files_with(
     Ok((out, feeder.stats))
 }
 
+/// What `shimmy estimate` says its messages are from.
+const TOOL: &str = "shimmy estimate";
+
+/// Feeds `logs`, in order, through the pipeline `off` and closes an event still open at the
+/// end; the readers' skips go to stderr as `tool`'s, and `what` names a log in errors.
+fn feed_logs(off: &mut Offline, logs: &[PathBuf], what: &str, tool: &str) -> anyhow::Result<()> {
+    for log in logs {
+        let mut src = LogReader::open(log)
+            .with_context(|| format!("cannot open {what} {}", log.display()))?;
+        let monitor = &mut off.monitor;
+        off.feeder
+            .feed_source(&mut src, |s| {
+                monitor.push(s);
+            })
+            .with_context(|| format!("{what} {}", log.display()))?;
+        for s in src.take_skips() {
+            eprintln!("{tool}: skipped {}: {}", s.location, s.reason);
+        }
+    }
+    off.monitor.finish();
+    Ok(())
+}
+
 /// The used events of the baseline logs, through the same pipeline as the logs (shimmyd's
-/// `vehicle.baseline_logs` too).
+/// `vehicle.baseline_logs` too); `tool` names the command in its messages.
 pub fn baseline_of(
     mapping_path: &Path,
     dbc: Option<&Path>,
     tables: crate::pipeline::Tables,
     cfg: ObserverConfig,
     b: &BaselineLogs,
+    tool: &str,
 ) -> anyhow::Result<crate::pipeline::observer_stage::Baseline> {
-    let Offline {
-        mut feeder,
-        mut monitor,
-        ..
-    } = Offline::open(mapping_path, dbc, tables, cfg, "shimmy estimate")?;
-    for log in &b.logs {
-        let mut src = LogReader::open(log)
-            .with_context(|| format!("cannot open baseline log {}", log.display()))?;
-        feeder
-            .feed_source(&mut src, |s| {
-                monitor.push(s);
-            })
-            .with_context(|| format!("baseline log {}", log.display()))?;
-        for s in src.take_skips() {
-            eprintln!("shimmy estimate: skipped {}: {}", s.location, s.reason);
-        }
-    }
-    monitor.finish();
+    let mut off = Offline::open(mapping_path, dbc, tables, cfg, tool)?;
+    feed_logs(&mut off, &b.logs, "baseline log", tool)?;
+    let monitor = &off.monitor;
     let evidence: Vec<_> = monitor.stage().evidence().copied().collect();
     if evidence.is_empty() {
         bail!(

@@ -52,16 +52,12 @@ pub fn for_config(cfg: &Config) -> anyhow::Result<Box<dyn EventStage>> {
         }
         None => None,
     };
-    let has_table = table.is_some() || torque.is_some();
-    let tables = crate::pipeline::Tables {
-        angle: table,
-        torque,
-    };
-    let mut stage = ObserverStage::new(&cfg.settings, tables.angle.clone())?
-        .with_torque_table(tables.torque.clone())?;
-    if !cfg.vehicle.baseline_logs.is_empty() {
+    // A baseline is read before the stage takes the tables (they are cloned only for it).
+    let baseline = if cfg.vehicle.baseline_logs.is_empty() {
+        None
+    } else {
         anyhow::ensure!(
-            has_table,
+            table.is_some() || torque.is_some(),
             "vehicle.baseline_logs: a baseline needs a response table (vehicle.table or \
              vehicle.torque_table)"
         );
@@ -75,14 +71,24 @@ pub fn for_config(cfg: &Config) -> anyhow::Result<Box<dyn EventStage>> {
             logs: cfg.vehicle.baseline_logs.clone(),
             clearance_mm: cfg.vehicle.baseline_clearance_mm,
         };
-        let b = crate::cli::estimate::baseline_of(
-            mapping,
-            Some(dbc),
-            tables,
-            cfg.settings.clone(),
-            &logs,
+        let tables = crate::pipeline::Tables {
+            angle: table.clone(),
+            torque: torque.clone(),
+        };
+        Some(
+            crate::cli::estimate::baseline_of(
+                mapping,
+                Some(dbc),
+                tables,
+                cfg.settings.clone(),
+                &logs,
+                "shimmyd",
+            )
+            .context("vehicle.baseline_logs")?,
         )
-        .context("vehicle.baseline_logs")?;
+    };
+    let mut stage = ObserverStage::new(&cfg.settings, table)?.with_torque_table(torque)?;
+    if let Some(b) = baseline {
         let used = stage.set_baseline(b);
         eprintln!(
             "shimmyd: baseline: {} event(s) of vehicle.baseline_logs at {} mm (angle {}, \

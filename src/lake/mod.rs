@@ -15,8 +15,9 @@
 //!
 //! Names: `log16` is the first 16 hex digits of the log's BLAKE3 hash, `dbc8` of the DBC's
 //! sha256 (the signal files depend on nothing else); `run16` of the run's hash ([`run_sha256`]:
-//! every log's hash in order, the DBC, mapping, table and settings), `nnnn` the log's position in the run
-//! (the monitor's rows depend on every log before them), `seq` the message's files of that log.
+//! every log's hash in order, the DBC, mapping, table and settings), `nnnn` the log's position
+//! in the run (the monitor's rows depend on every log before them), `seq` the message's files
+//! of that log.
 //! Dates are the UTC dates of the frames' timestamps (signals) or of the event's end (tables).
 //!
 //! One log at a time ([`Exporter::export_log`]): its frames go through the DBC decoder into the
@@ -75,9 +76,13 @@ pub fn sha256_file(path: &Path) -> anyhow::Result<String> {
 pub fn blake3_file(path: &Path) -> anyhow::Result<String> {
     let mut f =
         std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-    let mut h = blake3::Hasher::new();
+    blake3_to_end(blake3::Hasher::new(), &mut f, path)
+}
+
+/// `h` fed the rest of `r` (the file `path`), finished: BLAKE3 hex.
+fn blake3_to_end(mut h: blake3::Hasher, r: &mut impl Read, path: &Path) -> anyhow::Result<String> {
     hash_to_end(
-        &mut f,
+        r,
         |b| {
             h.update(b);
         },
@@ -140,7 +145,7 @@ fn open_hashed(
     }
     let path = path.to_path_buf();
     let finish = move || -> anyhow::Result<String> {
-        let (mut h, read) = {
+        let (h, read) = {
             let st = state.lock().unwrap_or_else(|e| e.into_inner());
             (st.0.clone(), st.1)
         };
@@ -148,14 +153,7 @@ fn open_hashed(
             .with_context(|| format!("cannot open {}", path.display()))?;
         f.seek(std::io::SeekFrom::Start(read))
             .with_context(|| format!("reading {}", path.display()))?;
-        hash_to_end(
-            &mut f,
-            |b| {
-                h.update(b);
-            },
-            &path,
-        )?;
-        Ok(h.finalize().to_hex().to_string())
+        blake3_to_end(h, &mut f, &path)
     };
     Ok((src, Box::new(finish)))
 }
