@@ -62,6 +62,8 @@ enum Phase {
     Approach,
     /// Holding it since `t0`.
     Hold { t0: f64 },
+    /// Coasting since `t0`.
+    Coasting { t0: f64 },
     /// Braking since `t0`.
     Braking { t0: f64 },
     /// Stopped at `t_stop`, pedal still pressed.
@@ -177,6 +179,24 @@ impl Driver {
                     }
                     return self.cruise_cmd(v, target);
                 }
+                (
+                    Segment::Coast {
+                        duration_s,
+                        decel_g,
+                    },
+                    Phase::Coasting { t0 },
+                ) => {
+                    if t - t0 >= duration_s {
+                        self.next_segment(t, v);
+                        continue;
+                    }
+                    let want = if v <= V_STANDSTILL_MPS {
+                        0.0
+                    } else {
+                        decel_g * G
+                    };
+                    return self.eased_cmd(want);
+                }
                 (Segment::Brake(b), Phase::Braking { t0 }) => {
                     let a_max = b.decel_g * G;
                     let tau = t - t0;
@@ -283,6 +303,11 @@ impl Driver {
         } else {
             want
         };
+        self.eased_cmd(want)
+    }
+
+    /// A demand without the pedal, moved towards `want` (m/s²) under the jerk limit.
+    fn eased_cmd(&mut self, want: f64) -> DriveCmd {
         // Jerk limit: `update` is called once per model step of `dt_s`.
         let max_change = JERK_MPS3 * self.dt_s;
         let d = (want - self.last_demand).clamp(-max_change, max_change);
@@ -326,8 +351,51 @@ impl Driver {
                 });
                 Phase::Braking { t0: t }
             }
+            Segment::Coast { .. } => Phase::Coasting { t0: t },
             Segment::Stand { .. } => Phase::Standing { t0: t },
         };
+    }
+
+    /// The steering-wheel angle (deg) of a braking event's `turn_deg` at time `t`: turned in
+    /// linearly over the cruise or coast just before the event, held at brake onset, returned
+    /// to 0 over `turn_unwind_s` after it; 0 elsewhere.
+    pub fn turn_deg(&self, t: f64) -> f64 {
+        let segs = &self.drive.segments;
+        let Some(seg) = segs.get(self.seg) else {
+            return 0.0;
+        };
+        match (seg, self.phase) {
+            (
+                Segment::Brake(b),
+                Phase::Braking { .. } | Phase::StoppedHold { .. } | Phase::Release { .. },
+            ) if b.turn_deg != 0.0 => {
+                let t0 = self.events.last().map_or(t, |e| e.t_start_s);
+                b.turn_deg * (1.0 - (t - t0) / b.turn_unwind_s).clamp(0.0, 1.0)
+            }
+            (Segment::Cruise { duration_s: d, .. }, Phase::Hold { t0 })
+            | (Segment::Coast { duration_s: d, .. }, Phase::Coasting { t0 }) => {
+                match segs.get(self.seg + 1) {
+                    Some(Segment::Brake(b)) if b.turn_deg != 0.0 => {
+                        let frac = if *d > 0.0 { (t - t0) / d } else { 1.0 };
+                        b.turn_deg * frac.clamp(0.0, 1.0)
+                    }
+                    _ => 0.0,
+                }
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// The road-noise scale (`road_noise_scale`) of the braking event in progress (onset to
+    /// the pedal's release), 1 otherwise.
+    pub fn road_noise_scale(&self) -> f64 {
+        match (self.drive.segments.get(self.seg), self.phase) {
+            (
+                Some(Segment::Brake(b)),
+                Phase::Braking { .. } | Phase::StoppedHold { .. } | Phase::Release { .. },
+            ) => b.road_noise_scale,
+            _ => 1.0,
+        }
     }
 }
 

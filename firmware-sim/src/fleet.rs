@@ -145,6 +145,20 @@ pub struct FleetArgs {
     /// seeds' vehicles and drives stay the same; use a separate --work-dir per value.
     #[arg(long, default_value = "none", value_parser = ["none", "per-stop"])]
     pub phase_change: String,
+    /// What precedes each braking event: steady (1.5 s of steady cruise at the event's speed)
+    /// or varied (each event, independently with probability 1/2 each: a coast of 1.5–3 s at
+    /// 0.03–0.12 g after the cruise, a change of road roughness at brake onset by ×0.5–2, and
+    /// a curve of 3–10° on the steering wheel turned in before onset and unwound over
+    /// 0.5–2 s), as braking on real roads follows coasting, a turn or a change of surface.
+    /// The vehicles, their braking plans and the road noise stay those of their seeds; use a
+    /// separate --work-dir per value.
+    #[arg(long, default_value = "steady", value_parser = ["steady", "varied"])]
+    pub pre_brake: String,
+    /// Multiply the white noise of the steering-angle and steering-torque sensors (0.01° and
+    /// 0.02 N·m RMS by default) by this factor: a sensor noisier or quieter than the table
+    /// assumes. Use a separate --work-dir per value.
+    #[arg(long, default_value_t = 1.0, value_name = "F")]
+    pub sensor_noise_factor: f64,
     /// Measure the same vehicles again: replicate 0 (the default) is the drive as its seed
     /// draws it; replicate r > 0 keeps everything the seed fixes about the vehicle (clearance,
     /// parameters, unbalance and its two phases, road-noise level, the braking plan) and draws
@@ -197,6 +211,12 @@ pub struct EvalTruth {
     /// `--replicate` of the run that wrote the log.
     #[serde(default)]
     pub replicate: u64,
+    /// `--pre-brake` of the run that wrote the log.
+    #[serde(default = "pre_brake_steady")]
+    pub pre_brake: String,
+    /// `--sensor-noise-factor` of the run that wrote the log.
+    #[serde(default = "one")]
+    pub sensor_noise_factor: f64,
     /// Hash of the nominal vehicle (`--vehicle`) of the run that wrote the log.
     #[serde(default = "default_vehicle_hash")]
     pub nominal_vehicle_hash: String,
@@ -207,6 +227,14 @@ pub struct EvalTruth {
 
 fn phase_none() -> String {
     "none".into()
+}
+
+fn pre_brake_steady() -> String {
+    "steady".into()
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 fn default_vehicle_hash() -> String {
@@ -347,7 +375,9 @@ pub struct VehicleResult {
     pub seconds: f64,
 }
 
-/// The scenario TOML of one fleet vehicle.
+/// The scenario TOML of one fleet vehicle; `pre` says what precedes each event (absent: a
+/// steady cruise).
+#[allow(clippy::too_many_arguments)]
 pub fn vehicle_scenario(
     seed: u64,
     clearance_mm: f64,
@@ -356,6 +386,7 @@ pub fn vehicle_scenario(
     road_noise_nm: f64,
     phase_per_stop: bool,
     events: &[(f64, f64)],
+    pre: &[PreBrake],
 ) -> String {
     let phase = if phase_per_stop {
         "phase_change = \"per_stop\"\n"
@@ -366,12 +397,81 @@ pub fn vehicle_scenario(
         "name = \"fleet_{seed}\"\nseed = {seed}\nvehicle = \"{vehicle_file}\"\n\n[clearance]\nmode = \"dual\"\nleft_mm = {clearance_mm}\n\n[excitation]\nunbalance_kgm = {unbalance_kgm}\nroad_noise_nm = {road_noise_nm}\n{phase}\n[drive]\nstart_speed_kmh = {}\naccel_g = 0.35\n",
         events.first().map_or(50.0, |e| e.0)
     );
-    for &(v, d) in events {
-        s += &format!(
-            "\n[[drive.segment]]\nkind = \"cruise\"\nspeed_kmh = {v}\nduration_s = 1.5\n\n[[drive.segment]]\nkind = \"brake\"\ndecel_g = {d}\nhold_s = 0.5\n"
-        );
+    for (k, &(v, d)) in events.iter().enumerate() {
+        let p = pre.get(k).copied().unwrap_or_default();
+        s +=
+            &format!("\n[[drive.segment]]\nkind = \"cruise\"\nspeed_kmh = {v}\nduration_s = 1.5\n");
+        if let Some((dur, g)) = p.coast {
+            s += &format!(
+                "\n[[drive.segment]]\nkind = \"coast\"\nduration_s = {dur}\ndecel_g = {g}\n"
+            );
+        }
+        s += &format!("\n[[drive.segment]]\nkind = \"brake\"\ndecel_g = {d}\nhold_s = 0.5\n");
+        if p.road_noise_scale != 1.0 {
+            s += &format!("road_noise_scale = {}\n", p.road_noise_scale);
+        }
+        if p.turn_deg != 0.0 {
+            s += &format!(
+                "turn_deg = {}\nturn_unwind_s = {}\n",
+                p.turn_deg, p.turn_unwind_s
+            );
+        }
     }
     s
+}
+
+/// What precedes one braking event of a fleet vehicle (`--pre-brake`); the default is the
+/// steady cruise.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PreBrake {
+    /// A coast after the cruise: (duration s, deceleration g).
+    pub coast: Option<(f64, f64)>,
+    /// Road roughness from brake onset, relative to the cruise's.
+    pub road_noise_scale: f64,
+    /// A curve on the steering wheel at brake onset (deg) and its unwinding time (s).
+    pub turn_deg: f64,
+    pub turn_unwind_s: f64,
+}
+
+impl Default for PreBrake {
+    fn default() -> Self {
+        PreBrake {
+            coast: None,
+            road_noise_scale: 1.0,
+            turn_deg: 0.0,
+            turn_unwind_s: 1.0,
+        }
+    }
+}
+
+/// The pre-brake situations of `n_events` events of the vehicle with `seed` under
+/// `--pre-brake varied` (deterministic, from their own stream: the vehicle's plan and road
+/// noise do not change). Each event independently gets, with probability 1/2 each, a coast,
+/// a change of road roughness and a curve.
+pub fn varied_pre_brake(seed: u64, n_events: usize) -> Vec<PreBrake> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(13);
+    let round = |x: f64, k: f64| (x * k).round() / k;
+    (0..n_events)
+        .map(|_| {
+            let mut p = PreBrake::default();
+            if rng.random::<bool>() {
+                p.coast = Some((
+                    round(rng.random_range(1.5..3.0), 10.0),
+                    round(rng.random_range(0.03..0.12), 100.0),
+                ));
+            }
+            if rng.random::<bool>() {
+                p.road_noise_scale = round(rng.random_range(0.5f64.ln()..2f64.ln()).exp(), 100.0);
+            }
+            if rng.random::<bool>() {
+                let side = if rng.random::<bool>() { 1.0 } else { -1.0 };
+                p.turn_deg = side * round(rng.random_range(3.0..10.0), 10.0);
+                p.turn_unwind_s = round(rng.random_range(0.5..2.0), 10.0);
+            }
+            p
+        })
+        .collect()
 }
 
 /// The scenario's `[hands]` section: the prior each leg of the drive draws the driver's hands
@@ -382,6 +482,20 @@ pub fn hands_section(prior: &HandsPrior) -> anyhow::Result<String> {
         hands: &'a HandsPrior,
     }
     Ok(format!("\n{}", toml::to_string(&Section { hands: prior })?))
+}
+
+/// The scenario's `[sensors]` section with the steering angle's and torque's white noise
+/// `factor` times the defaults (`--sensor-noise-factor`); empty for 1.
+pub fn sensors_section(factor: f64) -> String {
+    if factor == 1.0 {
+        return String::new();
+    }
+    let d = crate::scenario::Sensors::default();
+    format!(
+        "\n[sensors]\nsteer_noise_deg = {}\nsteer_torque_noise_nm = {}\n",
+        d.steer_noise_deg * factor,
+        d.steer_torque_noise_nm * factor
+    )
 }
 
 /// What a fleet vehicle is: its clearance, nuisance-drawn parameters, road-noise level and
@@ -488,6 +602,22 @@ fn vehicle_log(
                 setup.profile_name().as_deref().unwrap_or("(reference)")
             );
         }
+        if e.sensor_noise_factor != args.sensor_noise_factor {
+            anyhow::bail!(
+                "{} is for --sensor-noise-factor {}, not {}",
+                eval_path.display(),
+                e.sensor_noise_factor,
+                args.sensor_noise_factor
+            );
+        }
+        if e.pre_brake != args.pre_brake {
+            anyhow::bail!(
+                "{} is for --pre-brake {}, not {}",
+                eval_path.display(),
+                e.pre_brake,
+                args.pre_brake
+            );
+        }
         if e.replicate != args.replicate {
             anyhow::bail!(
                 "{} is for --replicate {}, not {}",
@@ -519,7 +649,13 @@ fn vehicle_log(
         noise,
         args.phase_change == "per-stop",
         &events,
+        &if args.pre_brake == "varied" {
+            varied_pre_brake(seed, events.len())
+        } else {
+            Vec::new()
+        },
     );
+    let text = text + &sensors_section(args.sensor_noise_factor);
     // With the §15 column, the driver's hands are drawn per leg (so per braking event).
     let text = match (&prior.hands, p.column.enabled) {
         (Some(h), true) => text + &hands_section(h)?,
@@ -561,6 +697,8 @@ fn vehicle_log(
         events: args.events,
         clearance_true_mm: c_mm,
         phase_change: args.phase_change.clone(),
+        pre_brake: args.pre_brake.clone(),
+        sensor_noise_factor: args.sensor_noise_factor,
         replicate: args.replicate,
         nominal_vehicle_hash: nominal.hash.clone(),
         profile: setup.profile_name(),
@@ -761,6 +899,10 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
             anyhow::bail!("--clearance-mm must be in (0, 2] mm, not {c}");
         }
     }
+    let f = args.sensor_noise_factor;
+    if !(f.is_finite() && (0.0..=100.0).contains(&f)) {
+        anyhow::bail!("--sensor-noise-factor must be in [0, 100], not {f}");
+    }
     let setup = Setup::load(&args)?;
     let table = match (&args.table, &setup.profile) {
         (Some(t), _) => ResponseTable::load(t)?,
@@ -957,9 +1099,53 @@ mod tests {
             0.2,
             false,
             &[(55.0, 0.5), (80.0, 0.3)],
+            &[],
         );
         let sc = Scenario::parse(&t, "test").unwrap();
         assert_eq!(sc.drive.segments.len(), 4);
+    }
+
+    #[test]
+    fn varied_pre_brake_draws_each_situation_for_about_half_the_events() {
+        let n = 400;
+        let p = varied_pre_brake(77, n);
+        assert_eq!(p, varied_pre_brake(77, n));
+        assert_ne!(p, varied_pre_brake(78, n));
+        let share =
+            |f: &dyn Fn(&PreBrake) -> bool| p.iter().filter(|x| f(x)).count() as f64 / n as f64;
+        for (name, s) in [
+            ("coast", share(&|x| x.coast.is_some())),
+            ("road", share(&|x| x.road_noise_scale != 1.0)),
+            ("curve", share(&|x| x.turn_deg != 0.0)),
+        ] {
+            assert!((0.4..0.6).contains(&s), "{name}: {s}");
+        }
+        assert!(p.iter().all(|x| {
+            x.coast
+                .is_none_or(|(d, g)| (1.5..=3.0).contains(&d) && (0.03..=0.12).contains(&g))
+                && (0.5..=2.0).contains(&x.road_noise_scale)
+                && (x.turn_deg == 0.0 || (3.0..=10.0).contains(&x.turn_deg.abs()))
+        }));
+        // Left and right curves.
+        assert!(p.iter().any(|x| x.turn_deg > 0.0) && p.iter().any(|x| x.turn_deg < 0.0));
+        // Every draw makes a scenario that parses, one segment more per coast.
+        let events: Vec<(f64, f64)> = (0..n).map(|_| (60.0, 0.5)).collect();
+        let t = vehicle_scenario(3, 0.1, "v.toml", 2e-3, 0.2, false, &events, &p);
+        let sc = Scenario::parse(&t, "test").unwrap();
+        let coasts = p.iter().filter(|x| x.coast.is_some()).count();
+        assert_eq!(sc.drive.segments.len(), 2 * n + coasts);
+    }
+
+    #[test]
+    fn the_sensor_noise_factor_scales_the_steering_sensors_only() {
+        assert_eq!(sensors_section(1.0), "");
+        let base = "seed = 1\n[clearance]\nleft_mm = 0.1\n[drive]\nstart_speed_kmh = 50\n\
+                    [[drive.segment]]\nkind = \"cruise\"\nspeed_kmh = 50\nduration_s = 1\n";
+        let sc = Scenario::parse(&format!("{base}{}", sensors_section(3.0)), "t").unwrap();
+        let d = crate::scenario::Sensors::default();
+        assert!((sc.sensors.steer_noise_deg - 3.0 * d.steer_noise_deg).abs() < 1e-12);
+        assert!((sc.sensors.steer_torque_noise_nm - 3.0 * d.steer_torque_noise_nm).abs() < 1e-12);
+        assert_eq!(sc.sensors.wheel_speed_noise_kmh, d.wheel_speed_noise_kmh);
     }
 
     fn args(extra: &[&str], dir: &Path) -> FleetArgs {

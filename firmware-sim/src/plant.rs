@@ -50,6 +50,9 @@ pub trait Plant {
     fn set_hands(&mut self, _h: &shimmy::model::Hands) -> anyhow::Result<()> {
         Ok(())
     }
+    /// Scales the road noise (MODEL.md §7) to `scale` times the scenario's level from now on: a
+    /// stretch of rougher or smoother road. Nothing for a plant without road noise.
+    fn set_road_noise_scale(&mut self, _scale: f64) {}
     /// Whether each joint (left, right) is in contact at the current step boundary (MODEL.md
     /// §4); `[false; 2]` for a plant without joints.
     fn in_contact(&self) -> [bool; 2] {
@@ -231,6 +234,8 @@ pub struct ModelPlant {
     accel: f64,
     steering_ratio: f64,
     wheelbase_m: f64,
+    /// The scenario's road-noise level (N·m at v_n), which `set_road_noise_scale` scales.
+    road_noise_nm: f64,
 }
 
 impl ModelPlant {
@@ -289,6 +294,7 @@ impl ModelPlant {
             accel: 0.0,
             steering_ratio: steering_ratio(&p),
             wheelbase_m: p.vehicle.wheelbase_m,
+            road_noise_nm: sc.excitation.road_noise_nm,
         })
     }
 
@@ -333,6 +339,9 @@ impl Plant for ModelPlant {
     }
     fn set_hands(&mut self, h: &shimmy::model::Hands) -> anyhow::Result<()> {
         Ok(self.sim.set_hands(h)?)
+    }
+    fn set_road_noise_scale(&mut self, scale: f64) {
+        self.sim.set_road_noise_std(self.road_noise_nm * scale);
     }
     fn speed_mps(&self) -> f64 {
         self.sim.state()[shimmy::model::rhs::ix::V]

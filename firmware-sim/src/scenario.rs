@@ -180,6 +180,10 @@ pub enum Segment {
     /// Reach `speed_kmh` (accelerating at `drive.accel_g` or coasting at `drive.coast_g`), then
     /// hold it for `duration_s`.
     Cruise { speed_kmh: f64, duration_s: f64 },
+    /// Lift off without braking: the car slows at `decel_g` (engine drag and rolling
+    /// resistance, 0.02–0.15 g) for `duration_s`, brake pedal released. Before a braking event
+    /// it replaces the steady cruise the event would otherwise follow.
+    Coast { duration_s: f64, decel_g: f64 },
     /// A braking event from the current speed.
     Brake(Brake),
     /// Stand still for `duration_s` (only valid at zero speed).
@@ -204,6 +208,28 @@ pub struct Brake {
     /// After a stop, how long the driver keeps the pedal pressed at standstill (s).
     #[serde(default = "default_hold_s")]
     pub hold_s: f64,
+    /// The road's roughness from brake onset to the pedal's release, relative to the
+    /// scenario's road noise (MODEL.md §7): a change of surface between the cruise and the
+    /// braking. 1 = the same road.
+    #[serde(default = "default_road_noise_scale")]
+    pub road_noise_scale: f64,
+    /// The driver comes out of a curve: the steering-wheel angle (deg, + = left) turned in
+    /// over the segment before the event and held at brake onset, then returned to straight
+    /// ahead over `turn_unwind_s`. It reaches the angle sensor and, on a car with a torsion
+    /// bar, the torque sensor as the driver's holding torque (`driver.turn_torque_nm_per_deg`);
+    /// the model itself runs straight (MODEL.md §14). 0 = straight.
+    #[serde(default)]
+    pub turn_deg: f64,
+    /// Time to return the wheel from `turn_deg` to straight ahead after brake onset (s).
+    #[serde(default = "default_turn_unwind_s")]
+    pub turn_unwind_s: f64,
+}
+
+fn default_road_noise_scale() -> f64 {
+    1.0
+}
+fn default_turn_unwind_s() -> f64 {
+    1.0
 }
 
 fn default_ramp_s() -> f64 {
@@ -270,6 +296,15 @@ pub struct Driver {
     /// Constant steering-wheel offset (deg): road crown, slight misalignment.
     #[serde(default)]
     pub steer_offset_deg: f64,
+    /// The torque the driver holds a curve with, per degree of steering-wheel angle (N·m/deg),
+    /// seen by the torsion bar's sensor during a braking event's `turn_deg`. Passenger cars
+    /// need about 1–3 N·m at 0.1–0.3 g of lateral acceleration with EPS assist.
+    #[serde(default = "default_turn_torque")]
+    pub turn_torque_nm_per_deg: f64,
+}
+
+fn default_turn_torque() -> f64 {
+    0.08
 }
 
 fn default_driver_rms() -> f64 {
@@ -285,6 +320,7 @@ impl Default for Driver {
             steer_rms_deg: default_driver_rms(),
             steer_tau_s: default_driver_tau(),
             steer_offset_deg: 0.0,
+            turn_torque_nm_per_deg: default_turn_torque(),
         }
     }
 }
@@ -549,6 +585,9 @@ impl Scenario {
                     range(&key("ramp_in_s"), b.ramp_in_s, 0.0, 5.0)?;
                     range(&key("ramp_out_s"), b.ramp_out_s, 0.0, 5.0)?;
                     range(&key("hold_s"), b.hold_s, 0.0, 60.0)?;
+                    range(&key("road_noise_scale"), b.road_noise_scale, 0.05, 20.0)?;
+                    range(&key("turn_deg"), b.turn_deg, -180.0, 180.0)?;
+                    range(&key("turn_unwind_s"), b.turn_unwind_s, 0.05, 30.0)?;
                     if let Some(dur) = b.duration_s {
                         range(&key("duration_s"), dur, 0.0, 600.0)?;
                         if dur < b.ramp_in_s + b.ramp_out_s {
@@ -564,6 +603,14 @@ impl Scenario {
                     if v_kmh <= 0.0 && b.duration_s.is_some() {
                         // Braking at standstill is allowed (it just holds the car).
                     }
+                }
+                Segment::Coast {
+                    duration_s,
+                    decel_g,
+                } => {
+                    range(&key("duration_s"), *duration_s, 0.0, 3600.0)?;
+                    range(&key("decel_g"), *decel_g, 0.0, 0.3)?;
+                    v_kmh = (v_kmh - decel_g * crate::drive::G * duration_s * 3.6).max(0.0);
                 }
                 Segment::Stand { duration_s } => {
                     range(&key("duration_s"), *duration_s, 0.0, 3600.0)?;
@@ -582,6 +629,12 @@ impl Scenario {
         range("excitation.road_noise_nm", x.road_noise_nm, 0.0, 20.0)?;
         range("driver.steer_rms_deg", self.driver.steer_rms_deg, 0.0, 30.0)?;
         range("driver.steer_tau_s", self.driver.steer_tau_s, 0.05, 100.0)?;
+        range(
+            "driver.turn_torque_nm_per_deg",
+            self.driver.turn_torque_nm_per_deg,
+            0.0,
+            1.0,
+        )?;
         range(
             "driver.steer_offset_deg",
             self.driver.steer_offset_deg,

@@ -114,6 +114,10 @@ pub struct FirmwareSim<P: Plant> {
     hands_rng: Option<ChaCha8Rng>,
     /// The hands on the rim now (drawn from `hands_rng`).
     hands_now: Option<HandsDraw>,
+    /// The road-noise scale the plant runs with now (a braking event's `road_noise_scale`).
+    road_scale: f64,
+    /// A braking event's curve (`turn_deg`) at the sensors now (deg).
+    turn_deg: f64,
 }
 
 impl<P: Plant> FirmwareSim<P> {
@@ -227,6 +231,8 @@ impl<P: Plant> FirmwareSim<P> {
                 _ => None,
             },
             hands_now: None,
+            road_scale: 1.0,
+            turn_deg: 0.0,
         };
         sim.new_hands()?;
         sim.lane_rad = sim.lane.step(&mut sim.lane_rng);
@@ -267,7 +273,8 @@ impl<P: Plant> FirmwareSim<P> {
     }
 
     fn sample(&self) -> Sample {
-        let steer_rad = self.plant.steering_wheel_rad() + self.lane_rad;
+        let steer_rad =
+            self.plant.steering_wheel_rad() + self.lane_rad + self.turn_deg.to_radians();
         let speed_mps = self.plant.speed_mps();
         let yaw_rate_rps = speed_mps * steer_rad * self.yaw_gain_per_m;
         Sample {
@@ -279,7 +286,12 @@ impl<P: Plant> FirmwareSim<P> {
             brake_pressed: self.last_cmd.brake_pressed,
             yaw_rate_rps,
             lat_accel_mps2: speed_mps * yaw_rate_rps,
-            steer_torque_nm: -self.plant.column_torque_nm(),
+            steer_torque_nm: -self.plant.column_torque_nm()
+                + if self.plant.has_torsion_bar() {
+                    self.scenario.driver.turn_torque_nm_per_deg * self.turn_deg
+                } else {
+                    0.0
+                },
             torsion_bar: self.plant.has_torsion_bar(),
         }
     }
@@ -330,6 +342,12 @@ impl<P: Plant> FirmwareSim<P> {
             cmd
         };
         self.last_cmd = cmd;
+        let road = self.driver.road_noise_scale();
+        if road != self.road_scale {
+            self.plant.set_road_noise_scale(road);
+            self.road_scale = road;
+        }
+        self.turn_deg = self.driver.turn_deg(t);
         self.plant.set_decel_demand(cmd.decel_demand_mps2);
         if self.chunk == 1 {
             self.plant.step();
@@ -596,6 +614,13 @@ pub fn estimate_duration_s(sc: &Scenario) -> f64 {
                     v = 0.0;
                 }
             },
+            Segment::Coast {
+                duration_s,
+                decel_g,
+            } => {
+                t += duration_s;
+                v = (v - decel_g * g * duration_s).max(0.0);
+            }
             Segment::Stand { duration_s } => t += duration_s,
         }
     }

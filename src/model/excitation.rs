@@ -67,6 +67,23 @@ impl Excitation {
         self.rng = rng;
     }
 
+    /// Sets the stationary standard deviation of the road noise from now on (N·m at v_n): the
+    /// road's roughness changes. The current values stay and relax to the new level within a
+    /// few τ; the stream of innovations is unchanged. A generator made with `sigma = 0` draws
+    /// nothing and stays silent.
+    pub fn set_sigma(&mut self, sigma: f64) {
+        if self.sigma == 0.0 || !(sigma.is_finite() && sigma > 0.0) {
+            return;
+        }
+        self.innov *= sigma / self.sigma;
+        self.sigma = sigma;
+    }
+
+    /// The stationary standard deviation of the road noise (N·m at v_n).
+    pub fn sigma(&self) -> f64 {
+        self.sigma
+    }
+
     /// Advances the OU processes by one step h (exact discretisation).
     #[inline]
     pub fn advance(&mut self) {
@@ -137,5 +154,36 @@ mod tests {
         // The phases do not depend on the noise settings.
         assert_eq!(Excitation::phases_of(3), a.phases);
         assert_eq!(Excitation::new(3, 0.0, 1.0, 1e-3).phases, a.phases);
+    }
+
+    #[test]
+    fn a_new_roughness_takes_over_within_a_few_tau() {
+        let (sigma, tau, h) = (0.2, 0.01, 1e-4);
+        let mut ex = Excitation::new(11, sigma, tau, h);
+        for _ in 0..1000 {
+            ex.advance();
+        }
+        ex.set_sigma(2.5 * sigma);
+        assert_eq!(ex.sigma(), 2.5 * sigma);
+        // Five τ to settle, then the stationary std is the new one.
+        for _ in 0..500 {
+            ex.advance();
+        }
+        let n = 200_000;
+        let s2: f64 = (0..n)
+            .map(|_| {
+                ex.advance();
+                ex.noise[1] * ex.noise[1]
+            })
+            .sum();
+        let std = (s2 / n as f64).sqrt();
+        assert!((std / (2.5 * sigma) - 1.0).abs() < 0.05, "std {std}");
+        // A silent generator stays silent; a bad value changes nothing.
+        let mut quiet = Excitation::new(11, 0.0, tau, h);
+        quiet.set_sigma(0.3);
+        quiet.advance();
+        assert_eq!((quiet.sigma(), quiet.noise), (0.0, [0.0; 2]));
+        ex.set_sigma(f64::NAN);
+        assert_eq!(ex.sigma(), 2.5 * sigma);
     }
 }

@@ -448,6 +448,18 @@ impl Simulator {
         self.exc.reseed_noise(seed);
     }
 
+    /// Sets the road noise's standard deviation (§7, N·m at v_n) from now on: a change of road
+    /// roughness. Nothing changes when the run has no road noise, or for a value that is not
+    /// finite and positive.
+    pub fn set_road_noise_std(&mut self, sigma_nm: f64) {
+        if !self.noise_on {
+            return;
+        }
+        self.commit_lookahead();
+        self.sync_noise();
+        self.exc.set_sigma(sigma_nm);
+    }
+
     /// Sets the radial clearances of the left and right joints from now on (§4): unequal
     /// wear, or clearance growing with distance (firmware-sim's wear option). A joint whose
     /// clearance grows while the pin presses into the bushing simply sees a smaller
