@@ -60,6 +60,11 @@ pub struct EventConfig {
     pub max_decel_g: f64,
     /// Largest |steering-wheel angle| during the window for a "nearly straight" event (deg).
     pub max_steer_deg: f64,
+    /// Largest change of the steering-wheel angle within any 1 s of the window and of the
+    /// pre-brake cruise window before it (deg): the wheel held, not turned. A wheel turned
+    /// through the sensor's steps makes its quantisation a noise in the band (0.1° steps at
+    /// 5°/s add about as much as a 0.1 mm rattle), and an unwinding curve a transient.
+    pub max_steer_change_deg: f64,
     /// Brake applications are recorded at all only from this initial speed (km/h) ...
     pub record_min_speed_kmh: f64,
     /// ... and this peak deceleration (g); lighter touches are ignored.
@@ -93,6 +98,7 @@ impl Default for EventConfig {
             min_decel_g: 0.3,
             max_decel_g: 0.8,
             max_steer_deg: 15.0,
+            max_steer_change_deg: 3.0,
             record_min_speed_kmh: 10.0,
             record_min_decel_g: 0.15,
             min_duration_s: 0.5,
@@ -219,6 +225,10 @@ pub struct EventRecord {
     pub stopped: bool,
     /// Largest |steering-wheel angle| in the window (deg).
     pub max_abs_steer_deg: f64,
+    /// Largest change of the steering-wheel angle within 1 s over the cruise window and the
+    /// event's (deg).
+    #[serde(default)]
+    pub max_steer_change_deg: f64,
     /// Distance driven before the brake onset since the detector started (m).
     pub odometer_m: f64,
     pub quality: Quality,
@@ -591,6 +601,14 @@ impl Detector {
         let i0 = steer.partition_point(|x| x.0 < t_start_ns);
         let i1 = steer.partition_point(|x| x.0 <= tail_end);
         let win = &steer[i0..i1];
+        // The largest change within 1 s, from the cruise window before the onset on.
+        let c0 = steer.partition_point(|x| {
+            x.0 < t_start_ns
+                - ((crate::observer::features::CRUISE_WINDOW_S
+                    + crate::observer::features::CRUISE_GUARD_S)
+                    * 1e9) as i64
+        });
+        let max_change_deg = max_change_within(&steer[c0..i1], 1_000_000_000).to_degrees();
         let mut max_abs = 0.0f64;
         let mut qstep = f64::INFINITY;
         let mut max_gap = 0.0f64;
@@ -645,7 +663,7 @@ impl Detector {
             Some(Unused::DecelOutOfRange)
         } else if duration_s < cfg.min_duration_s {
             Some(Unused::TooShort)
-        } else if max_steer_deg > cfg.max_steer_deg {
+        } else if max_steer_deg > cfg.max_steer_deg || max_change_deg > cfg.max_steer_change_deg {
             Some(Unused::NotStraight)
         } else if sample_hz < cfg.min_sample_hz {
             Some(Unused::LowSampleRate)
@@ -663,6 +681,7 @@ impl Detector {
             ramp_s,
             stopped,
             max_abs_steer_deg: max_steer_deg,
+            max_steer_change_deg: max_change_deg,
             odometer_m: self.odo_start,
             quality,
             used: unused_reason.is_none(),
@@ -682,6 +701,25 @@ impl Detector {
 }
 
 /// Median of `x` (reorders it). None when empty.
+/// The largest |x(t₂) − x(t₁)| over samples (`(t_ns, x)`, increasing time) at most `span_ns`
+/// apart: how far the signal moves within that span. 0 for fewer than two samples.
+pub fn max_change_within(x: &[(i64, f64)], span_ns: i64) -> f64 {
+    // For each sample, the extremes of the samples in the span before it (a monotone deque
+    // would be O(n); the windows here hold at most a few hundred samples, so a scan back
+    // from the newest is as fast and needs no buffer).
+    let mut best = 0.0f64;
+    let mut j = 0;
+    for k in 0..x.len() {
+        while x[k].0 - x[j].0 > span_ns {
+            j += 1;
+        }
+        for p in &x[j..k] {
+            best = best.max((x[k].1 - p.1).abs());
+        }
+    }
+    best
+}
+
 pub fn median_in_place(x: &mut [f64]) -> Option<f64> {
     if x.is_empty() {
         return None;

@@ -20,6 +20,7 @@ impl ObserverConfig {
         positive("events.min_speed_kmh", e.min_speed_kmh)?;
         positive("events.min_decel_g", e.min_decel_g)?;
         positive("events.max_steer_deg", e.max_steer_deg)?;
+        positive("events.max_steer_change_deg", e.max_steer_change_deg)?;
         ordered(
             "events.min_speed_kmh",
             e.min_speed_kmh,
@@ -88,6 +89,12 @@ impl ObserverConfig {
             bail!(
                 "{pre}features.sensor.quant_step_deg: must be >= 0 (0 = measured per event) (got {})",
                 f.sensor.quant_step_deg
+            );
+        }
+        if !(f.noise_floor_ratio.is_finite() && (0.0..=100.0).contains(&f.noise_floor_ratio)) {
+            bail!(
+                "{pre}features.noise_floor_ratio: must be in [0, 100] (0 = off) (got {})",
+                f.noise_floor_ratio
             );
         }
         if !(f.sensor.noise_deg.is_finite() && f.sensor.noise_deg >= 0.0) {

@@ -28,8 +28,13 @@ pub struct ModelFit {
     pub dof: f64,
     /// Wilson–Hilferty normal score of `deviance` under χ²(`dof`).
     pub z: f64,
-    /// False when `z` exceeds the configured limit with at least [`MIN_DOF`] degrees of freedom.
+    /// False when `z` exceeds the configured limit with at least [`MIN_DOF`] degrees of
+    /// freedom, or when the estimate's sensor is noisier than its table assumes.
     pub fits: bool,
+    /// The estimate's steering sensor measured noisier at standstill than its table assumes
+    /// (src/observer/noise_floor.rs): the table does not describe this vehicle's sensor.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub sensor_noisier: bool,
     /// ln of the events' marginal likelihood under the table's model (clearance prior and
     /// nuisances integrated out), with the evidence power: what a fleet-level fit of a
     /// per-car-model correction adds up over vehicles (`shimmy fleet-gain`).
@@ -50,8 +55,20 @@ impl ModelFit {
             dof,
             z,
             fits: !(dof >= MIN_DOF && z > z_max),
+            sensor_noisier: false,
             ln_evidence: None,
             ln_evidence_untempered: None,
+        }
+    }
+}
+
+impl ModelFit {
+    /// Marks the estimate's sensor as noisier than its table assumes (or not): the model then
+    /// does not fit, whatever the deviance says.
+    pub fn set_sensor_noisier(&mut self, noisier: bool) {
+        self.sensor_noisier = noisier;
+        if noisier {
+            self.fits = false;
         }
     }
 }

@@ -28,6 +28,7 @@ pub mod features;
 pub mod fit;
 pub mod linear;
 pub mod marginal;
+pub mod noise_floor;
 pub mod rejections;
 pub mod sensor;
 pub mod simulate;
@@ -62,6 +63,10 @@ pub struct ObserverConfig {
 pub struct FeatureConfig {
     pub sensor: SensorNoise,
     pub crest_factor: f64,
+    /// A steering sensor whose noise measured at standstill exceeds this many times (RMS) what
+    /// the features assume makes "the model does not fit" (src/observer/noise_floor.rs); 0
+    /// turns the check off.
+    pub noise_floor_ratio: f64,
 }
 
 impl Default for FeatureConfig {
@@ -69,6 +74,7 @@ impl Default for FeatureConfig {
         FeatureConfig {
             sensor: SensorNoise::default(),
             crest_factor: 2.2,
+            noise_floor_ratio: 1.5,
         }
     }
 }
@@ -219,6 +225,10 @@ pub struct Report {
     /// Method "linear": whether the events fit the table's model (src/observer/fit.rs).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub model_fit: Option<fit::ModelFit>,
+    /// The steering sensors' noise measured at standstill, per channel with a measurement
+    /// (src/observer/noise_floor.rs).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub sensor_noise: Vec<noise_floor::MeasuredNoise>,
 }
 
 /// One used event's features into `est` (on `table`), placed on the detector's odometer.
@@ -287,6 +297,8 @@ pub struct Observer {
     feeds_estimator: bool,
     /// The torsion-bar torque channel, with a torque table.
     torque: Option<TorqueChannel>,
+    /// The steering sensors' noise measured at standstill ([`noise_floor`]).
+    noise_floor: noise_floor::NoiseFloor,
 }
 
 /// The second steering channel: the torsion-bar torque's response table and its own
@@ -335,6 +347,7 @@ impl Observer {
             used_total: 0,
             feeds_estimator: true,
             torque: None,
+            noise_floor: noise_floor::NoiseFloor::default(),
             cfg,
         })
     }
@@ -422,6 +435,7 @@ impl Observer {
     }
 
     pub fn push(&mut self, s: &Sample) {
+        self.noise_floor.push(s);
         let Some(fin) = self.detector.push(s) else {
             self.note_ignored();
             return;
@@ -433,6 +447,7 @@ impl Observer {
 
     /// Closes an event still open at the end of the input.
     pub fn finish(&mut self) {
+        self.noise_floor.end_of_input();
         let Some(fin) = self.detector.flush() else {
             self.note_ignored();
             return;
@@ -440,6 +455,60 @@ impl Observer {
         let tq = Self::measure_torque(&self.cfg, &mut self.torque, &fin);
         let (rec, feats) = Self::measure(&mut self.extractor, &self.cfg, fin);
         self.on_event(rec, feats, tq);
+    }
+
+    /// The steering sensors' noise measured at standstill so far: each channel with a
+    /// measurement, against what its features assume.
+    pub fn measured_noise(&self) -> Vec<noise_floor::MeasuredNoise> {
+        use noise_floor::Channel;
+        let ratio = self.cfg.features.noise_floor_ratio;
+        let mut out = Vec::new();
+        // What the tables' events were simulated with (MODEL.md §8 sensor model): white noise
+        // and quantisation.
+        let angle_assumed = self.table.as_ref().map_or_else(
+            || {
+                let n = self.cfg.features.sensor;
+                n.quant_step_deg.powi(2) / 12.0 + n.noise_deg.powi(2)
+            },
+            |t| t.sensor.step_deg.powi(2) / 12.0 + t.sensor.noise_deg.powi(2),
+        );
+        let torque_assumed = self
+            .torque
+            .as_ref()
+            .map(|t| t.noise.quant_step_deg.powi(2) / 12.0 + t.noise.noise_deg.powi(2));
+        for (ch, signal, assumed) in [
+            (
+                Channel::Angle,
+                features::SteerSignal::AngleDeg,
+                Some(angle_assumed),
+            ),
+            (
+                Channel::Torque,
+                features::SteerSignal::TorqueNm,
+                torque_assumed,
+            ),
+        ] {
+            if let (Some(m), Some(a)) = (self.noise_floor.variance(ch), assumed) {
+                out.push(noise_floor::MeasuredNoise {
+                    signal,
+                    measured_rms: m.sqrt(),
+                    assumed_rms: a.sqrt(),
+                    stops: self.noise_floor.stops(ch),
+                    above_assumed: self.noise_floor.excess_variance(ch, a, ratio) > 0.0,
+                });
+            }
+        }
+        out
+    }
+
+    /// The standstill noise meter, for a caller that saves it with its state.
+    pub fn noise_floor(&self) -> &noise_floor::NoiseFloor {
+        &self.noise_floor
+    }
+
+    /// Puts back a saved standstill noise meter (a daemon's restart).
+    pub fn set_noise_floor(&mut self, n: noise_floor::NoiseFloor) {
+        self.noise_floor = n;
     }
 
     /// The torque features of a finished event, with a torque channel: `None` without one,
@@ -750,23 +819,48 @@ impl Observer {
             verdict
         };
         let z_max = self.cfg.estimator.fit_z_max;
+        let sensor_noise = self.measured_noise();
+        let active_signal = if self.torque.as_ref().is_some_and(TorqueChannel::active) {
+            features::SteerSignal::TorqueNm
+        } else {
+            features::SteerSignal::AngleDeg
+        };
+        let noisy = sensor_noise
+            .iter()
+            .find(|n| n.above_assumed && n.signal == active_signal);
         let model_fit = active.and_then(|e| {
             let (dev, dof) = e.fit()?;
             let mut f = fit::ModelFit::new(dev, dof, z_max);
+            f.set_sensor_noisier(noisy.is_some());
             f.ln_evidence = e.ln_evidence().map(|l| l[0]);
             f.ln_evidence_untempered = e.ln_evidence().map(|l| l[1]);
             Some(f)
         });
-        let verdict = match model_fit {
-            Some(f) if !f.fits => format!(
-                "{verdict}; but the model does not fit this vehicle: its events scatter more \
+        let verdict =
+            match (model_fit, noisy) {
+                (Some(f), Some(n)) if !f.fits => format!(
+                "{verdict}; but the model does not fit this vehicle: its steering {} sensor is \
+                 noisier than the response table assumes ({:.3} {u} RMS measured at standstill \
+                 over {} stops, {:.3} {u} assumed), so the interval is not to be trusted; \
+                 rebuild the table for this sensor (`shimmy calibrate{} --sensor-noise-deg \
+                 {:.3}`, see docs/ACCURACY.md)",
+                if n.signal.is_angle() { "angle" } else { "torque" },
+                n.measured_rms,
+                n.stops,
+                n.assumed_rms,
+                if n.signal.is_angle() { "" } else { " --signal torque" },
+                n.measured_rms,
+                u = n.signal.unit()
+            ),
+                (Some(f), _) if !f.fits => format!(
+                    "{verdict}; but the model does not fit this vehicle: its events scatter more \
                  about every clearance's prediction than the response table's vehicles do \
                  (goodness of fit z = {:.1} over {:.0} features, limit {z_max:.1}), so the \
                  interval is not to be trusted; see docs/ACCURACY.md",
-                f.z, f.dof
-            ),
-            _ => verdict,
-        };
+                    f.z, f.dof
+                ),
+                _ => verdict,
+            };
         Report {
             median_mm: summary.map(|s| s.0.median_mm),
             clearance_mm,
@@ -793,6 +887,7 @@ impl Observer {
             }),
             p_wheel_phase_fixed: active.and_then(|e| e.phase_fixed_probability()),
             model_fit,
+            sensor_noise,
         }
     }
 }

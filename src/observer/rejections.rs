@@ -76,7 +76,10 @@ pub fn describe_unused(why: Unused, cfg: &EventConfig) -> String {
             "deceleration outside {}-{} g",
             cfg.min_decel_g, cfg.max_decel_g
         ),
-        Unused::NotStraight => format!("steering beyond {} deg", cfg.max_steer_deg),
+        Unused::NotStraight => format!(
+            "steering beyond {} deg or turned by more than {} deg within 1 s",
+            cfg.max_steer_deg, cfg.max_steer_change_deg
+        ),
         Unused::TooShort => format!("shorter than {} s", cfg.min_duration_s),
         Unused::LowSampleRate => format!("steering sampled below {} Hz", cfg.min_sample_hz),
         Unused::MissingData => format!(

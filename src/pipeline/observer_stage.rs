@@ -97,6 +97,8 @@ pub struct Saved {
     /// The vehicle's baseline (events at a known clearance), when it has one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub baseline: Option<Baseline>,
+    /// The steering sensors' noise measured at standstill so far (the stops kept).
+    pub noise_floor: crate::observer::noise_floor::NoiseFloor,
 }
 
 /// Events of the vehicle at a known clearance (its first ones after the joints were
@@ -356,6 +358,7 @@ impl EventStage for ObserverStage {
             evidence: self.evidence.iter().copied().collect(),
             evidence_dropped: self.evidence_dropped,
             baseline: self.baseline.clone(),
+            noise_floor: self.obs.noise_floor().clone(),
         })
         .ok()
     }
@@ -370,6 +373,7 @@ impl EventStage for ObserverStage {
         let saved: Saved = serde_json::from_value(saved.clone())
             .context("the state's saved posterior does not parse")?;
         self.obs.reset_estimator()?;
+        self.obs.set_noise_floor(saved.noise_floor.clone());
         self.evidence.clear();
         self.evidence_dropped = saved.evidence_dropped;
         // A baseline given now (set before the restore) takes the place of the saved one.
