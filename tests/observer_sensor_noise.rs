@@ -1,7 +1,8 @@
 //! The steering sensors' noise measured at standstill (src/observer/noise_floor.rs): a steering
 //! angle sensor noisier than the response table's makes `shimmy estimate` say that the model
 //! does not fit the vehicle, with that reason, the measured and assumed noise and the table to
-//! build; the sensor the table describes is measured and passes.
+//! build, and shimmyd's estimate carry the same reason; the sensor the table describes is
+//! measured and passes.
 
 mod e2e_common;
 
@@ -93,6 +94,15 @@ fn a_steering_sensor_noisier_than_the_tables_is_named_as_the_reason_the_model_do
     );
     // The same events are used: the check says how far to trust them, it drops nothing.
     assert_eq!(noisy["events_used"], ok["events_used"]);
+
+    // shimmyd on the same logs: its estimate carries the reason (and so would a clearance
+    // alert's summary); the matched sensor's carries none.
+    let j = e2e_common::replay_reference(&drive(dir.path(), 0.08), &dir.path().join("d1"), None);
+    let est = j.estimate.expect("an estimate record");
+    let why = est["misfit"].as_str().unwrap_or_default();
+    assert!(why.contains("steering angle sensor is noisier"), "{est}");
+    let j = e2e_common::replay_reference(&drive(dir.path(), 0.01), &dir.path().join("d2"), None);
+    assert!(j.estimate.unwrap().get("misfit").is_none());
 }
 
 #[test]

@@ -264,6 +264,12 @@ impl AlertBook {
                         e.events_used
                     ),
                 };
+                let summary = match &e.misfit {
+                    Some(why) => {
+                        format!("{summary}; but the model does not fit this vehicle: {why}")
+                    }
+                    None => summary,
+                };
                 let evidence = Evidence {
                     events: vec![ev.into()],
                     estimate: Some(e.clone()),
@@ -392,6 +398,7 @@ mod tests {
             below_mm: None,
             p_above: Some(p),
             events_used: 7,
+            misfit: None,
         };
         // Just below the raise probability: nothing.
         let below = cfg.clearance_probability - 0.01;

@@ -61,6 +61,11 @@ pub struct Estimate {
     /// P(clearance > the alert threshold).
     pub p_above: Option<f64>,
     pub events_used: u32,
+    /// Why the model does not fit this vehicle, when the goodness-of-fit check says so
+    /// (src/observer/fit.rs, src/observer/noise_floor.rs): the interval is then not to be
+    /// trusted.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub misfit: Option<String>,
 }
 
 /// [`EventStage::rejections`]: the counts and their explanation (counts, then the likely cause).

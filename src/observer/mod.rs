@@ -457,6 +457,60 @@ impl Observer {
         self.on_event(rec, feats, tq);
     }
 
+    /// The goodness-of-fit check of the estimate now (src/observer/fit.rs), the sensor-noise
+    /// check ([`noise_floor`]) included, and, when the model does not fit, why (the clause
+    /// the report's verdict and the clearance alert carry). `(None, None)` before the check
+    /// has anything to judge.
+    pub fn fit_check(&self) -> (Option<fit::ModelFit>, Option<String>) {
+        let z_max = self.cfg.estimator.fit_z_max;
+        let torque_active = self.torque.as_ref().is_some_and(TorqueChannel::active);
+        let active_signal = if torque_active {
+            features::SteerSignal::TorqueNm
+        } else {
+            features::SteerSignal::AngleDeg
+        };
+        let noisy = self
+            .measured_noise()
+            .into_iter()
+            .find(|n| n.above_assumed && n.signal == active_signal);
+        let Some(f) = self.active_estimator().and_then(|e| {
+            let (dev, dof) = e.fit()?;
+            let mut f = fit::ModelFit::new(dev, dof, z_max);
+            f.set_sensor_noisier(noisy.is_some());
+            f.ln_evidence = e.ln_evidence().map(|l| l[0]);
+            f.ln_evidence_untempered = e.ln_evidence().map(|l| l[1]);
+            Some(f)
+        }) else {
+            return (None, None);
+        };
+        let why =
+            match noisy {
+                _ if f.fits => None,
+                Some(n) => {
+                    Some(format!(
+                "its steering {} sensor is noisier than the response table assumes ({:.3} {u} \
+                 RMS measured at standstill over {} stops, {:.3} {u} assumed), so the interval \
+                 is not to be trusted; rebuild the table for this sensor (`shimmy calibrate{} \
+                 --sensor-noise-deg {:.3}`, see docs/ACCURACY.md)",
+                if n.signal.is_angle() { "angle" } else { "torque" },
+                n.measured_rms,
+                n.stops,
+                n.assumed_rms,
+                if n.signal.is_angle() { "" } else { " --signal torque" },
+                n.measured_rms,
+                u = n.signal.unit()
+            ))
+                }
+                None => Some(format!(
+                    "its events scatter more about every clearance's prediction than the response \
+                 table's vehicles do (goodness of fit z = {:.1} over {:.0} features, limit \
+                 {z_max:.1}), so the interval is not to be trusted; see docs/ACCURACY.md",
+                    f.z, f.dof
+                )),
+            };
+        (Some(f), why)
+    }
+
     /// The steering sensors' noise measured at standstill so far: each channel with a
     /// measurement, against what its features assume.
     pub fn measured_noise(&self) -> Vec<noise_floor::MeasuredNoise> {
@@ -818,49 +872,12 @@ impl Observer {
         } else {
             verdict
         };
-        let z_max = self.cfg.estimator.fit_z_max;
         let sensor_noise = self.measured_noise();
-        let active_signal = if self.torque.as_ref().is_some_and(TorqueChannel::active) {
-            features::SteerSignal::TorqueNm
-        } else {
-            features::SteerSignal::AngleDeg
+        let (model_fit, misfit) = self.fit_check();
+        let verdict = match misfit {
+            Some(why) => format!("{verdict}; but the model does not fit this vehicle: {why}"),
+            None => verdict,
         };
-        let noisy = sensor_noise
-            .iter()
-            .find(|n| n.above_assumed && n.signal == active_signal);
-        let model_fit = active.and_then(|e| {
-            let (dev, dof) = e.fit()?;
-            let mut f = fit::ModelFit::new(dev, dof, z_max);
-            f.set_sensor_noisier(noisy.is_some());
-            f.ln_evidence = e.ln_evidence().map(|l| l[0]);
-            f.ln_evidence_untempered = e.ln_evidence().map(|l| l[1]);
-            Some(f)
-        });
-        let verdict =
-            match (model_fit, noisy) {
-                (Some(f), Some(n)) if !f.fits => format!(
-                "{verdict}; but the model does not fit this vehicle: its steering {} sensor is \
-                 noisier than the response table assumes ({:.3} {u} RMS measured at standstill \
-                 over {} stops, {:.3} {u} assumed), so the interval is not to be trusted; \
-                 rebuild the table for this sensor (`shimmy calibrate{} --sensor-noise-deg \
-                 {:.3}`, see docs/ACCURACY.md)",
-                if n.signal.is_angle() { "angle" } else { "torque" },
-                n.measured_rms,
-                n.stops,
-                n.assumed_rms,
-                if n.signal.is_angle() { "" } else { " --signal torque" },
-                n.measured_rms,
-                u = n.signal.unit()
-            ),
-                (Some(f), _) if !f.fits => format!(
-                    "{verdict}; but the model does not fit this vehicle: its events scatter more \
-                 about every clearance's prediction than the response table's vehicles do \
-                 (goodness of fit z = {:.1} over {:.0} features, limit {z_max:.1}), so the \
-                 interval is not to be trusted; see docs/ACCURACY.md",
-                    f.z, f.dof
-                ),
-                _ => verdict,
-            };
         Report {
             median_mm: summary.map(|s| s.0.median_mm),
             clearance_mm,

@@ -351,6 +351,7 @@ mod tests {
                 below_mm: None,
                 p_above: Some(p),
                 events_used: self.done as u32,
+                misfit: None,
             })
         }
     }

@@ -422,6 +422,7 @@ impl EventStage for ObserverStage {
             below_mm: (used && !s.detectable).then_some(s.below_mm),
             p_above: used.then(|| est.prob_above(self.clearance_mm)),
             events_used: s.events_used,
+            misfit: used.then(|| self.obs.fit_check().1).flatten(),
         })
     }
 }

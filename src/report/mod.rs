@@ -59,6 +59,7 @@ mod tests {
             below_mm: (!detectable).then_some(hi),
             p_above: Some(0.5),
             events_used: 12,
+            misfit: None,
         };
         let v = |e: Estimate| super::verdict(&[], Some(&e), 12, &cfg);
         let ok = v(est(Some(0.085), 0.081, 0.093, true));
@@ -71,6 +72,19 @@ mod tests {
         assert_eq!(v(est(Some(0.09), 0.082, 0.14, true)).condition, "undecided");
         let none = super::verdict(&[], None, 0, &cfg);
         assert_eq!(none.condition, "unknown");
+        // An estimate the model does not fit is never "ok", however low.
+        let misfit = Estimate {
+            misfit: Some(
+                "its steering torque sensor is noisier than the response table assumes".into(),
+            ),
+            ..est(Some(0.04), 0.03, 0.05, true)
+        };
+        let m = v(misfit);
+        assert_eq!(m.condition, "undecided", "{m:?}");
+        assert!(
+            m.headline.contains("does not fit") && m.headline.contains("noisier"),
+            "{m:?}"
+        );
     }
 }
 
@@ -136,6 +150,17 @@ fn verdict(open: &[Alert], est: Option<&Estimate>, events: usize, cfg: &AlertsSe
         )
     } else {
         match est {
+            Some(Estimate {
+                misfit: Some(why),
+                events_used,
+                ..
+            }) if *events_used > 0 => (
+                "undecided",
+                format!(
+                    "No alert, but the clearance estimate cannot be trusted: the model does not \
+                     fit this vehicle ({why}). Inspect the steering joint clearances by hand."
+                ),
+            ),
             Some(e) if e.events_used > 0 => {
                 let limit = cfg.clearance_mm;
                 // The upper end of what the posterior allows: the 90 % interval's, or the
