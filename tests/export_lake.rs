@@ -578,18 +578,7 @@ fn a_drive_with_a_torque_exports_the_torque_and_its_table() {
     let sc = dir.path().join("column_worn.toml");
     std::fs::write(&sc, scenario).unwrap();
     let log = dir.path().join("column_worn.log");
-    let out = Command::new(e2e_common::firmware_sim())
-        .args(["--profile", "shimmy_reference_eps", "--scenario"])
-        .arg(&sc)
-        .arg("--out")
-        .arg(&log)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    e2e_common::simulate(&sc, &log, &["--profile", "shimmy_reference_eps"]);
 
     let lake = dir.path().join("lake");
     let out = export("shimmy_reference_eps", "eps-1", &lake, &[&log]);

@@ -29,18 +29,7 @@ fn drive(dir: &Path, noise_deg: f64) -> std::path::PathBuf {
     let sc = dir.join(format!("{name}.toml"));
     std::fs::write(&sc, s).unwrap();
     let log = dir.join(format!("{name}.log"));
-    let out = Command::new(e2e_common::firmware_sim())
-        .arg("--scenario")
-        .arg(&sc)
-        .arg("--out")
-        .arg(&log)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    e2e_common::simulate(&sc, &log, &[]);
     log
 }
 

@@ -24,6 +24,11 @@ use serde::{Deserialize, Serialize};
 
 const G: f64 = 9.80665;
 
+/// How long before the brake onset the steering wheel must already be held for
+/// [`EventConfig::max_steer_change_deg`] (s): the observer's pre-brake cruise window and its
+/// guard (`observer::features::CRUISE_WINDOW_S + CRUISE_GUARD_S`, checked by a test there).
+pub const STEER_HELD_BEFORE_S: f64 = 1.25;
+
 /// One update of the mapped signals. Fields are `Some` only when that quantity was freshly
 /// received with this update (so the detector sees each steering sample once); `brake` is the
 /// current braking state when known.
@@ -602,12 +607,7 @@ impl Detector {
         let i1 = steer.partition_point(|x| x.0 <= tail_end);
         let win = &steer[i0..i1];
         // The largest change within 1 s, from the cruise window before the onset on.
-        let c0 = steer.partition_point(|x| {
-            x.0 < t_start_ns
-                - ((crate::observer::features::CRUISE_WINDOW_S
-                    + crate::observer::features::CRUISE_GUARD_S)
-                    * 1e9) as i64
-        });
+        let c0 = steer.partition_point(|x| x.0 < t_start_ns - (STEER_HELD_BEFORE_S * 1e9) as i64);
         let max_change_deg = max_change_within(&steer[c0..i1], 1_000_000_000).to_degrees();
         let mut max_abs = 0.0f64;
         let mut qstep = f64::INFINITY;

@@ -311,3 +311,14 @@ pub fn enbw_fraction(bp: &Bandpass) -> f64 {
     }
     s / m as f64
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_detector_checks_the_steering_over_the_cruise_window() {
+        let w = CRUISE_WINDOW_S + CRUISE_GUARD_S;
+        assert!((crate::events::STEER_HELD_BEFORE_S - w).abs() < 1e-12);
+    }
+}

@@ -109,6 +109,26 @@ pub struct Generated {
     pub stderr: String,
 }
 
+/// Runs `firmware-sim [args] --scenario SCENARIO --out LOG` and asserts it succeeded; its
+/// stderr.
+pub fn simulate(scenario: &Path, log: &Path, args: &[&str]) -> String {
+    let out = Command::new(firmware_sim())
+        .args(args)
+        .arg("--scenario")
+        .arg(scenario)
+        .arg("--out")
+        .arg(log)
+        .output()
+        .expect("start firmware-sim");
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(
+        out.status.success(),
+        "firmware-sim {}: {stderr}",
+        scenario.display()
+    );
+    stderr
+}
+
 /// Runs `firmware-sim --scenario config/scenarios/<name>.toml --out <dir>/<name>.log`, with
 /// the scenario's seed or `seed`.
 pub fn generate(name: &str, seed: Option<u64>, dir: &Path) -> Generated {
