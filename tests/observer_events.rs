@@ -24,6 +24,9 @@ struct Drive {
     amp_deg: f64,
     cruise_amp_deg: f64,
     steer_offset_deg: f64,
+    /// The wheel turned at this rate (deg/s) from 1 s before the brake to 1.5 s after it (a
+    /// curve unwound while braking).
+    steer_rate_deg_s: f64,
     step_deg: f64,
     with_accel: bool,
     drop: f64,
@@ -40,6 +43,7 @@ impl Default for Drive {
             amp_deg: 0.3,
             cruise_amp_deg: 0.0,
             steer_offset_deg: 1.0,
+            steer_rate_deg_s: 0.0,
             step_deg: 0.1,
             with_accel: false,
             drop: 0.0,
@@ -97,7 +101,8 @@ fn samples(d: &Drive) -> Vec<Sample> {
             } else {
                 0.0
             };
-            let deg = d.steer_offset_deg + shimmy + offset;
+            let turn = d.steer_rate_deg_s * (t - (T_BRAKE - 1.0)).clamp(0.0, 2.5);
+            let deg = d.steer_offset_deg + turn + shimmy + offset;
             let q = (deg / d.step_deg).round() * d.step_deg;
             s.steer_rad = Some(q.to_radians());
             any = true;
@@ -223,6 +228,39 @@ fn out_of_range_events_are_recorded_but_flagged_unused() {
         assert!(!ev[0].used, "{why:?}: {:#?}", ev[0]);
         assert_eq!(ev[0].unused_reason, Some(why), "{:#?}", ev[0]);
     }
+}
+
+#[test]
+fn a_wheel_turned_around_the_brake_onset_is_not_straight() {
+    let turned = |rate: f64| {
+        let d = Drive {
+            steer_rate_deg_s: rate,
+            ..Drive::default()
+        };
+        let (ev, _) = detect(&d, EventConfig::default());
+        assert_eq!(ev.len(), 1);
+        ev.into_iter().next().unwrap()
+    };
+    // Held (the shimmy's 0.6 deg peak to peak) and turned slowly: used.
+    let held = turned(0.0);
+    assert!(held.used && held.max_steer_change_deg < 1.0, "{held:#?}");
+    let slow = turned(1.0);
+    assert!(slow.used, "{slow:#?}");
+    assert!((1.2..2.0).contains(&slow.max_steer_change_deg), "{slow:#?}");
+    // 5 deg/s: about 5 deg within a second, beyond the 3 deg allowed.
+    let fast = turned(5.0);
+    assert_eq!(fast.unused_reason, Some(Unused::NotStraight), "{fast:#?}");
+    assert!((5.0..6.0).contains(&fast.max_steer_change_deg), "{fast:#?}");
+    // Configurable.
+    let cfg = EventConfig {
+        max_steer_change_deg: 8.0,
+        ..EventConfig::default()
+    };
+    let d = Drive {
+        steer_rate_deg_s: 5.0,
+        ..Drive::default()
+    };
+    assert!(detect(&d, cfg).0[0].used);
 }
 
 #[test]

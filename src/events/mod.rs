@@ -67,8 +67,9 @@ pub struct EventConfig {
     pub max_steer_deg: f64,
     /// Largest change of the steering-wheel angle within any 1 s of the window and of the
     /// pre-brake cruise window before it (deg): the wheel held, not turned. A wheel turned
-    /// through the sensor's steps makes its quantisation a noise in the band (0.1° steps at
-    /// 5°/s add about as much as a 0.1 mm rattle), and an unwinding curve a transient.
+    /// through the sensor's steps makes its quantisation a noise in the band, and an unwinding
+    /// curve a transient (curves of 6–10° unwound while braking doubled the band-passed peak
+    /// of tight joints: docs/ACCURACY.md).
     pub max_steer_change_deg: f64,
     /// Brake applications are recorded at all only from this initial speed (km/h) ...
     pub record_min_speed_kmh: f64,
@@ -700,7 +701,6 @@ impl Detector {
     }
 }
 
-/// Median of `x` (reorders it). None when empty.
 /// The largest |x(t₂) − x(t₁)| over samples (`(t_ns, x)`, increasing time) at most `span_ns`
 /// apart: how far the signal moves within that span. 0 for fewer than two samples.
 pub fn max_change_within(x: &[(i64, f64)], span_ns: i64) -> f64 {
@@ -720,6 +720,7 @@ pub fn max_change_within(x: &[(i64, f64)], span_ns: i64) -> f64 {
     best
 }
 
+/// Median of `x` (reorders it). None when empty.
 pub fn median_in_place(x: &mut [f64]) -> Option<f64> {
     if x.is_empty() {
         return None;
