@@ -28,6 +28,8 @@ enum Cmd {
     Doctor(shimmy::cli::doctor::Args),
     /// Build the clearance estimator's response table from the shimmy model.
     Calibrate(shimmy::cli::calibrate::Args),
+    /// Fit a car model's correction to its response tables from many vehicles at new joints.
+    FleetFit(shimmy::cli::fleet_fit::Args),
     /// Workshop inspection report (HTML or JSON) from shimmyd's journal, state, or CAN logs.
     Report(shimmy::cli::report::Args),
     Simulate(shimmy::cli::simulate::Args),
@@ -46,6 +48,7 @@ fn main() {
         Cmd::Identify(a) => shimmy::cli::identify::run(a),
         Cmd::Doctor(a) => shimmy::cli::doctor::run(a),
         Cmd::Calibrate(a) => shimmy::cli::calibrate::run(a),
+        Cmd::FleetFit(a) => shimmy::cli::fleet_fit::run(a),
         Cmd::Report(a) => shimmy::cli::report::run(a),
         Cmd::Simulate(a) => shimmy::cli::simulate::run(a),
         Cmd::Reproduce(a) => shimmy::cli::reproduce::run(a),

@@ -295,6 +295,22 @@ pub fn baseline_of(
     b: &BaselineLogs,
     tool: &str,
 ) -> anyhow::Result<crate::pipeline::observer_stage::Baseline> {
+    Ok(baseline_and_noise_of(mapping_path, dbc, tables, cfg, b, tool)?.0)
+}
+
+/// [`baseline_of`], with the steering sensors' noise measured at standstill over the same
+/// logs (src/observer/noise_floor.rs).
+pub fn baseline_and_noise_of(
+    mapping_path: &Path,
+    dbc: Option<&Path>,
+    tables: crate::pipeline::Tables,
+    cfg: ObserverConfig,
+    b: &BaselineLogs,
+    tool: &str,
+) -> anyhow::Result<(
+    crate::pipeline::observer_stage::Baseline,
+    Vec<crate::observer::noise_floor::MeasuredNoise>,
+)> {
     let mut off = Offline::open(mapping_path, dbc, tables, cfg, tool)?;
     feed_logs(&mut off, &b.logs, "baseline log", tool)?;
     let monitor = &off.monitor;
@@ -305,10 +321,13 @@ pub fn baseline_of(
             monitor.stage().observer().report().verdict
         );
     }
-    Ok(crate::pipeline::observer_stage::Baseline {
-        clearance_mm: b.clearance_mm,
-        evidence,
-    })
+    Ok((
+        crate::pipeline::observer_stage::Baseline {
+            clearance_mm: b.clearance_mm,
+            evidence,
+        },
+        monitor.stage().observer().measured_noise(),
+    ))
 }
 
 /// What `shimmy estimate` prints: the observer's report with the alerts standing, and the

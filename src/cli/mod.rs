@@ -8,6 +8,7 @@ pub mod doctor;
 pub mod estimate;
 #[cfg(feature = "lake")]
 pub mod export;
+pub mod fleet_fit;
 pub mod identify;
 pub mod report;
 pub mod reproduce;

@@ -3,6 +3,8 @@
 //! set. Without a table, events and the shimmy-amplitude alert still work; the clearance is
 //! not estimated (never a fake estimate). With `vehicle.torque_table` too, events with a
 //! live torsion-bar torque feed the torque's estimator, which the estimate then comes from.
+//! A profile's own tables carry the profile's correction (`correction`, src/observer/
+//! correction.rs), as every other path that loads them does.
 
 use anyhow::Context;
 
@@ -22,12 +24,20 @@ pub fn for_config(cfg: &Config) -> anyhow::Result<Box<dyn EventStage>> {
                 profile.check_table(&t).with_context(|| {
                     format!("vehicle.table {} for profile {}", p.display(), profile.name)
                 })?;
-            } else if let Some(params) = &cfg.vehicle.params {
-                let v = crate::cli::estimate::load_vehicle(Some(params))?;
-                t.check_vehicle(&crate::observer::table::vehicle_hash(&v)?)
-                    .with_context(|| format!("vehicle.table {}", p.display()))?;
+                Some(with_correction(
+                    profile,
+                    profile.table_path.as_deref(),
+                    p,
+                    t,
+                )?)
+            } else {
+                if let Some(params) = &cfg.vehicle.params {
+                    let v = crate::cli::estimate::load_vehicle(Some(params))?;
+                    t.check_vehicle(&crate::observer::table::vehicle_hash(&v)?)
+                        .with_context(|| format!("vehicle.table {}", p.display()))?;
+                }
+                Some(t)
             }
-            Some(t)
         }
         None => None,
     };
@@ -43,12 +53,18 @@ pub fn for_config(cfg: &Config) -> anyhow::Result<Box<dyn EventStage>> {
                         profile.name
                     )
                 })?;
+                Some(with_correction(
+                    profile,
+                    profile.torque_table_path.as_deref(),
+                    p,
+                    t,
+                )?)
             } else {
                 let v = crate::cli::estimate::load_vehicle(cfg.vehicle.params.as_deref())?;
                 t.check_torque_vehicle(&v)
                     .with_context(|| format!("vehicle.torque_table {}", p.display()))?;
+                Some(t)
             }
-            Some(t)
         }
         None => None,
     };
@@ -100,4 +116,25 @@ pub fn for_config(cfg: &Config) -> anyhow::Result<Box<dyn EventStage>> {
         );
     }
     Ok(Box::new(stage))
+}
+
+/// The profile's own table (`own`, loaded from `path`) with the profile's correction attached
+/// ([`crate::profile::Profile::corrected`]); a table given in its place is another table, which
+/// the profile's correction does not describe.
+fn with_correction(
+    profile: &crate::profile::Profile,
+    own: Option<&std::path::Path>,
+    path: &std::path::Path,
+    t: ResponseTable,
+) -> anyhow::Result<ResponseTable> {
+    let same = |a: &std::path::Path, b: &std::path::Path| match (a.canonicalize(), b.canonicalize())
+    {
+        (Ok(a), Ok(b)) => a == b,
+        _ => a == b,
+    };
+    if own.is_some_and(|o| same(o, path)) {
+        profile.corrected(t)
+    } else {
+        Ok(t)
+    }
 }

@@ -107,8 +107,9 @@ pub struct EstimatorConfig {
     /// the same wheel motion (the steering-wheel transfer, MODEL.md §8 and §15): the braking
     /// and cruise features are divided by it before they meet the table. 1 = the table's
     /// vehicle. For a car whose transfer is known to differ (its steering ratio against the
-    /// table's); the angle features alone cannot tell it from a clearance change, not even over
-    /// a fleet (docs/ACCURACY.md, "self-calibration"), so nothing estimates it.
+    /// table's); one vehicle's features cannot tell it from a clearance change, nor a fleet of
+    /// unknown clearances (docs/ACCURACY.md, "self-calibration"); a car model's fleet at new
+    /// joints can: the profile's correction ([`super::correction`]), whose gains multiply this.
     pub transfer_gain: f64,
 }
 
@@ -308,11 +309,66 @@ pub struct Estimator {
     last_odometer_m: Option<f64>,
     events_used: u32,
     baseline_events: u32,
+    /// What each feature (braking RMS, peak, cruise RMS) is divided by before it meets the
+    /// table: the transfer gain times the correction's gain.
+    gain: [f64; 3],
+    /// The car model's correction applied, if any.
+    correction: Option<super::correction::Correction>,
 }
 
 impl Estimator {
+    /// An estimator on `table` with the settings `cfg`, applying the table's correction
+    /// ([`ResponseTable::correction`], from the car model's profile) when it has one.
     pub fn new(table: &ResponseTable, cfg: EstimatorConfig) -> anyhow::Result<Estimator> {
+        Self::with_correction(table, cfg, table.correction.as_ref())
+    }
+
+    /// [`Self::new`] with the car model's correction given ([`super::correction`]): each
+    /// feature divided by its gain (and the transfer gain) before it meets the table, the
+    /// vehicle's misfit prior widened by the correction's spread and uncertainty.
+    pub fn with_correction(
+        table: &ResponseTable,
+        cfg: EstimatorConfig,
+        correction: Option<&super::correction::Correction>,
+    ) -> anyhow::Result<Estimator> {
+        Self::build(table, cfg, correction, None)
+    }
+
+    /// An estimator whose clearance grid is the one clearance `clearance_mm`: for
+    /// [`Self::push_baseline`] and [`Self::baseline_ln_evidence`] only (the correction's fit,
+    /// which evaluates many of them), not for estimates.
+    pub(crate) fn for_baseline_fit(
+        table: &ResponseTable,
+        cfg: EstimatorConfig,
+        correction: Option<&super::correction::Correction>,
+        clearance_mm: f64,
+    ) -> anyhow::Result<Estimator> {
+        anyhow::ensure!(
+            cfg.method == "linear",
+            "a baseline fit needs method \"linear\""
+        );
+        Self::build(table, cfg, correction, Some(clearance_mm))
+    }
+
+    fn build(
+        table: &ResponseTable,
+        cfg: EstimatorConfig,
+        correction: Option<&super::correction::Correction>,
+        only_at_mm: Option<f64>,
+    ) -> anyhow::Result<Estimator> {
         cfg.validate()?;
+        let g = cfg.transfer_gain;
+        let gain = match correction {
+            Some(c) => {
+                c.validate()?;
+                [g * c.gain[0], g * c.gain[1], g * c.gain[2]]
+            }
+            None => [g; 3],
+        };
+        let mut lp_cfg = cfg.clone();
+        if let Some(c) = correction {
+            lp_cfg.misfit_std = (cfg.misfit_std * cfg.misfit_std + c.extra_var()).sqrt();
+        }
         let (use_rms, use_peak) = (cfg.features != "peak", cfg.features != "rms");
         let (linear, ln_c, n_m) = if cfg.method == "linear" {
             let lm = table.linear.as_ref().ok_or_else(|| {
@@ -321,8 +377,14 @@ impl Estimator {
                      nuisance model (rebuild it with `shimmy calibrate`)"
                 )
             })?;
-            let (ln_c, pos) = super::marginal::fine_grid(&table.clearance_mm, cfg.grid_refine);
-            let lp = super::marginal::LinearPosterior::new(table, lm, pos, &cfg)?;
+            let (ln_c, pos) = match only_at_mm {
+                Some(c) => (
+                    vec![c.ln()],
+                    vec![super::marginal::axis_position(&table.clearance_mm, c)],
+                ),
+                None => super::marginal::fine_grid(&table.clearance_mm, cfg.grid_refine),
+            };
+            let lp = super::marginal::LinearPosterior::new(table, lm, pos, &lp_cfg)?;
             // The mixture's joint vectors stay empty.
             (Some(lp), ln_c, 0)
         } else {
@@ -357,6 +419,8 @@ impl Estimator {
             last_odometer_m: None,
             events_used: 0,
             baseline_events: 0,
+            gain,
+            correction: correction.cloned(),
             cfg,
         })
     }
@@ -478,24 +542,8 @@ impl Estimator {
             .last_odometer_m
             .map(|prev| (odometer_m - prev) / 1000.0);
         self.last_odometer_m = Some(odometer_m);
-        let g = self.cfg.transfer_gain;
         let cruise_rms_deg = cruise_rms_deg.filter(|_| self.cfg.cruise && table.cruise);
-        let ln_jac = if g == 1.0 {
-            0.0
-        } else {
-            use super::features::{ln_jacobian_gain as lj, Z_FLOOR_DEG as F};
-            let mut j = 0.0;
-            if self.use_rms {
-                j += lj(rms_deg, F[0], g);
-            }
-            if self.use_peak {
-                j += lj(peak_deg, F[1], g);
-            }
-            if let Some(c) = cruise_rms_deg {
-                j += lj(c, F[0], g);
-            }
-            j
-        };
+        let ln_jac = self.ln_jacobian(rms_deg, peak_deg, cruise_rms_deg);
         let (z3, mask) = self.features(rms_deg, peak_deg, cruise_rms_deg);
         let (z, zc) = ([z3[0], z3[1]], mask[2].then_some(z3[2]));
         if let Some(lp) = self.linear.as_mut() {
@@ -538,29 +586,93 @@ impl Estimator {
         decel_g: f64,
         clearance_mm: f64,
     ) -> bool {
+        if !self.push_baseline(
+            table,
+            rms_deg,
+            peak_deg,
+            cruise_rms_deg,
+            v0_kmh,
+            decel_g,
+            clearance_mm,
+        ) {
+            return false;
+        }
+        if let Some(lp) = self.linear.as_mut() {
+            lp.probabilities_into(&mut self.marg, &self.log_prior);
+        }
+        true
+    }
+
+    /// Σ ln dz_table/dz_measured of the features that enter, under the gains
+    /// ([`super::features::ln_jacobian_gain`]); 0 at gains 1.
+    fn ln_jacobian(&self, rms_deg: f64, peak_deg: f64, cruise_rms_deg: Option<f64>) -> f64 {
+        use super::features::{ln_jacobian_gain as lj, Z_FLOOR_DEG as F};
+        let g = self.gain;
+        let mut j = 0.0;
+        if self.use_rms && g[0] != 1.0 {
+            j += lj(rms_deg, F[0], g[0]);
+        }
+        if self.use_peak && g[1] != 1.0 {
+            j += lj(peak_deg, F[1], g[1]);
+        }
+        if let Some(c) = cruise_rms_deg.filter(|_| g[2] != 1.0) {
+            j += lj(c, F[0], g[2]);
+        }
+        j
+    }
+
+    /// [`Self::update_baseline`] without refreshing the posterior: for a caller that adds many
+    /// baseline events and then asks only [`Self::baseline_ln_evidence`] (the correction's
+    /// fit). Returns false for the `"mixture"` method.
+    #[allow(clippy::too_many_arguments)]
+    pub fn push_baseline(
+        &mut self,
+        table: &ResponseTable,
+        rms_deg: f64,
+        peak_deg: f64,
+        cruise_rms_deg: Option<f64>,
+        v0_kmh: f64,
+        decel_g: f64,
+        clearance_mm: f64,
+    ) -> bool {
         let cruise_rms_deg = cruise_rms_deg.filter(|_| self.cfg.cruise && table.cruise);
+        let ln_jac = self.ln_jacobian(rms_deg, peak_deg, cruise_rms_deg);
         let (z3, mask) = self.features(rms_deg, peak_deg, cruise_rms_deg);
         let Some(lp) = self.linear.as_mut() else {
             return false;
         };
         let pos = super::marginal::axis_position(&table.clearance_mm, clearance_mm);
         lp.update_known(z3, &mask, v0_kmh, decel_g, pos);
-        lp.probabilities_into(&mut self.marg, &self.log_prior);
+        lp.add_baseline_ln_jacobian(ln_jac);
         self.baseline_events += 1;
         true
     }
 
+    /// ln of the baseline events' marginal likelihood at their known clearance, the vehicle's
+    /// nuisances and misfit integrated out, with the evidence power and the gains' Jacobian
+    /// ([`super::marginal::LinearPosterior::baseline_ln_evidence`]); `None` without baseline
+    /// events or for the `"mixture"` method.
+    pub fn baseline_ln_evidence(&self) -> Option<f64> {
+        self.linear.as_ref()?.baseline_ln_evidence()
+    }
+
+    /// The car model's correction applied ([`Self::with_correction`]), if any.
+    pub fn correction(&self) -> Option<&super::correction::Correction> {
+        self.correction.as_ref()
+    }
+
     /// An event's features as the table reads them (ln RMS, ln peak, ln cruise RMS after the
-    /// transfer gain) and which of them enter (the cruise when measured).
+    /// transfer gain and the correction's gains) and which of them enter (the cruise when
+    /// measured).
     fn features(
         &self,
         rms_deg: f64,
         peak_deg: f64,
         cruise_rms_deg: Option<f64>,
     ) -> ([f64; 3], [bool; 3]) {
-        let g = self.cfg.transfer_gain;
-        let z = super::features::z(rms_deg / g, peak_deg / g);
-        let zc = cruise_rms_deg.map(|c| super::features::z_cruise(c / g));
+        let g = self.gain;
+        let z = super::features::z(rms_deg / g[0], peak_deg / g[1]);
+        let zc = cruise_rms_deg.map(|c| super::features::z_cruise(c / g[2]));
         (
             [z[0], z[1], zc.unwrap_or(0.0)],
             [self.use_rms, self.use_peak, zc.is_some()],

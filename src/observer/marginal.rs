@@ -198,6 +198,10 @@ pub struct LinearPosterior {
     /// of "event"; empty until the first one.
     baseline: Vec<Stats>,
     baseline_obs: f64,
+    /// Where on the table's clearance axis the baseline events were (the last one's).
+    baseline_pos: (usize, f64),
+    /// Σ over the baseline events of ln dz_table/dz_measured.
+    baseline_ln_jacobian: f64,
     /// Variance added to the model's misfit covariance T (ln units²), and added on top of it
     /// once there is a baseline.
     misfit_var: f64,
@@ -410,6 +414,8 @@ impl LinearPosterior {
             scratch_base: Vec::new(),
             baseline: Vec::new(),
             baseline_obs: 0.0,
+            baseline_pos: (0, 0.0),
+            baseline_ln_jacobian: 0.0,
             misfit_var,
             baseline_misfit_var: cfg.baseline_misfit_std * cfg.baseline_misfit_std,
             points_v,
@@ -501,12 +507,51 @@ impl LinearPosterior {
             }
         }
         self.baseline_obs += mask.iter().filter(|&&m| m).count() as f64;
+        self.baseline_pos = pos;
         let sp = bracket(&self.speed_kmh, v0_kmh);
         self.event_basis(decel_g);
         let mut base = std::mem::take(&mut self.baseline);
         let (bv, be) = base.split_at_mut(nv);
         self.add_at(pos, sp, &z, mask, bv, be);
         self.baseline = base;
+    }
+
+    /// Adds one baseline event's ln dz_table/dz_measured (a gain other than 1) to the
+    /// baseline's evidence.
+    pub fn add_baseline_ln_jacobian(&mut self, ln_jac: f64) {
+        self.baseline_ln_jacobian += ln_jac;
+    }
+
+    /// ln of the baseline events' marginal likelihood at their clearance (the position of
+    /// the last one), the vehicle's coordinates and misfit integrated out under the prior
+    /// this posterior was built with, both phase hypotheses in use weighted ½, with the
+    /// evidence power and the Jacobian of any gain; up to a constant that depends only on the
+    /// number of features observed. `None` before a baseline event. Allocates (the prior at
+    /// one position): for fits, not for the per-frame path.
+    pub fn baseline_ln_evidence(&self) -> Option<f64> {
+        if self.baseline.is_empty() {
+            return None;
+        }
+        let var = self.misfit_var + self.baseline_misfit_var;
+        let prior = build_prior(&self.model, &[self.baseline_pos], var, self.inflation2).ok()?;
+        let (lam, ld_lam) = &prior[0];
+        let nv = self.points_v.len();
+        let (bv, be) = self.baseline.split_at(nv);
+        let hyp = |stats: &[Stats]| -> f64 {
+            if stats.is_empty() {
+                return f64::NEG_INFINITY;
+            }
+            let ls: Vec<f64> = stats.iter().map(|st| st.evidence(lam, *ld_lam).0).collect();
+            log_mean_exp(&ls)
+        };
+        let (l_v, l_e) = (hyp(bv), hyp(be));
+        let l = match (bv.is_empty(), be.is_empty()) {
+            (false, false) => log_mean_exp(&[l_v, l_e]),
+            (false, true) => l_v,
+            _ => l_e,
+        };
+        let l = self.power * (l + self.baseline_ln_jacobian);
+        l.is_finite().then_some(l)
     }
 
     /// Baseline events added ([`Self::update_known`]), as features observed.

@@ -22,6 +22,7 @@
 
 pub mod alerts;
 mod checks;
+pub mod correction;
 pub mod emulate;
 pub mod estimator;
 pub mod features;
@@ -80,6 +81,15 @@ impl Default for FeatureConfig {
 }
 
 impl ObserverConfig {
+    /// The `[estimator]` settings of the torsion-bar torque's estimator: the angle's with its
+    /// own evidence power (`torque_evidence_power`).
+    pub fn torque_estimator(&self) -> EstimatorConfig {
+        EstimatorConfig {
+            evidence_power: self.estimator.torque_evidence_power,
+            ..self.estimator.clone()
+        }
+    }
+
     pub fn from_toml_str(text: &str) -> anyhow::Result<ObserverConfig> {
         Ok(Self::from_toml_str_with_warnings(text)?.0)
     }
@@ -229,6 +239,10 @@ pub struct Report {
     /// (src/observer/noise_floor.rs).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub sensor_noise: Vec<noise_floor::MeasuredNoise>,
+    /// The car model's correction the estimate applied (its profile's, fitted by `shimmy
+    /// fleet-fit`; src/observer/correction.rs), when there is one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub correction: Option<correction::Correction>,
 }
 
 /// One used event's features into `est` (on `table`), placed on the detector's odometer.
@@ -426,12 +440,9 @@ impl Observer {
         Ok(())
     }
 
-    /// The `[estimator]` settings of the torque's estimator: its own evidence power.
+    /// The `[estimator]` settings of the torque's estimator ([`ObserverConfig::torque_estimator`]).
     fn torque_estimator_config(&self) -> EstimatorConfig {
-        EstimatorConfig {
-            evidence_power: self.cfg.estimator.torque_evidence_power,
-            ..self.cfg.estimator.clone()
-        }
+        self.cfg.torque_estimator()
     }
 
     pub fn push(&mut self, s: &Sample) {
@@ -905,6 +916,7 @@ impl Observer {
             p_wheel_phase_fixed: active.and_then(|e| e.phase_fixed_probability()),
             model_fit,
             sensor_noise,
+            correction: active.and_then(|e| e.correction().cloned()),
         }
     }
 }

@@ -134,6 +134,14 @@ pub struct ResponseTable {
     /// recorded were built with the default.
     #[serde(default)]
     pub prior: NuisanceRanges,
+    /// FNV-1a of the file the table was loaded from (empty for a table built in memory): what
+    /// a car model's correction names its table by ([`super::correction`]).
+    #[serde(skip)]
+    pub fingerprint: String,
+    /// The car model's correction to this table, when its profile has one
+    /// ([`super::correction`]); the estimator applies it.
+    #[serde(skip)]
+    pub correction: Option<super::correction::Correction>,
 }
 
 /// FNV-1a 64 of `bytes`, as 16 hex digits. Used for the vehicle-parameter version stamp (not a
@@ -279,8 +287,10 @@ impl ResponseTable {
         } else {
             serde_json::from_str(&text).with_context(not_a_table)?
         };
+        let mut t = t;
         t.validate()
             .with_context(|| format!("response table {}", path.display()))?;
+        t.fingerprint = fnv1a_hex(text.as_bytes());
         Ok(t)
     }
 

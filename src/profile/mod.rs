@@ -29,6 +29,7 @@ use anyhow::{bail, Context};
 use serde::{Deserialize, Serialize};
 
 use crate::model::VehicleParams;
+use crate::observer::correction::CorrectionFile;
 use crate::observer::sensor::SensorModel;
 use crate::observer::simulate::{ColumnRanges, HandsPrior, NuisanceRanges};
 use crate::observer::table::{vehicle_hash, ResponseTable};
@@ -60,6 +61,12 @@ pub struct ProfileFile {
     /// angle table stays the fallback.
     #[serde(default)]
     pub torque_table: Option<String>,
+    /// The car model's correction to its tables (`shimmy fleet-fit` over many of its vehicles
+    /// at new joints; src/observer/correction.rs), relative to the profile folder. Each
+    /// table whose signal has a section gets it, and every estimate from the profile applies
+    /// it; a correction fitted against another table is refused.
+    #[serde(default)]
+    pub correction: Option<String>,
     /// The bus description (firmware-sim and `shimmy identify`), relative to the folder.
     #[serde(default)]
     pub bus: Option<String>,
@@ -165,6 +172,7 @@ pub struct Profile {
     pub sensor: SensorModel,
     pub table_path: Option<PathBuf>,
     pub torque_table_path: Option<PathBuf>,
+    pub correction_path: Option<PathBuf>,
     pub bus_path: Option<PathBuf>,
 }
 
@@ -339,6 +347,7 @@ impl Profile {
         let opt = |f: &Option<String>| f.as_ref().map(|f| dir.join(f));
         let table_path = opt(&file.table);
         let torque_table_path = opt(&file.torque_table);
+        let correction_path = opt(&file.correction);
         let bus_path = opt(&file.bus);
         for (key, p) in [("bus", &bus_path)] {
             if let Some(p) = p {
@@ -359,6 +368,7 @@ impl Profile {
             sensor,
             table_path,
             torque_table_path,
+            correction_path,
             bus_path,
             file,
         })
@@ -392,7 +402,7 @@ impl Profile {
         let t = ResponseTable::load(path)?;
         self.check_table(&t)
             .with_context(|| format!("profile {}: table {}", self.name, path.display()))?;
-        Ok(Some(t))
+        Ok(Some(self.corrected(t)?))
     }
 
     /// The profile's torque table ([`ProfileFile::torque_table`]), checked: a table of the
@@ -409,7 +419,41 @@ impl Profile {
         let ctx = || format!("profile {}: torque table {}", self.name, path.display());
         let t = ResponseTable::load(path).with_context(ctx)?;
         self.check_torque_table(&t).with_context(ctx)?;
-        Ok(Some(t))
+        Ok(Some(self.corrected(t)?))
+    }
+
+    /// The profile's correction ([`ProfileFile::correction`]), `None` when it names none.
+    pub fn load_correction(&self) -> anyhow::Result<Option<CorrectionFile>> {
+        match &self.correction_path {
+            Some(p) => Ok(Some(
+                CorrectionFile::load(p).with_context(|| format!("profile {}", self.name))?,
+            )),
+            None => Ok(None),
+        }
+    }
+
+    /// `t` with the profile's correction of its signal attached, when there is one; refused
+    /// when it was fitted against another table. [`Self::load_table`] and
+    /// [`Self::load_torque_table`] apply it; a caller that loads the profile's table from its
+    /// path itself (shimmyd) calls it.
+    pub fn corrected(&self, mut t: ResponseTable) -> anyhow::Result<ResponseTable> {
+        let Some(file) = self.load_correction()? else {
+            return Ok(t);
+        };
+        if let Some(c) = file.of(t.sensor.signal) {
+            if c.table_fingerprint != t.fingerprint {
+                bail!(
+                    "profile {}: its correction {} was fitted against another {} table                      (fingerprint {}, this table's {}); fit it again with `shimmy fleet-fit`",
+                    self.name,
+                    self.correction_path.as_deref().unwrap_or(Path::new("?")).display(),
+                    t.sensor.signal.unit(),
+                    c.table_fingerprint,
+                    t.fingerprint
+                );
+            }
+            t.correction = Some(c.clone());
+        }
+        Ok(t)
     }
 
     /// Refuses a torque table built for another chassis, prior or torque rate.

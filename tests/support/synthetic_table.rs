@@ -30,6 +30,8 @@ pub fn synthetic(
         provenance: "synthetic".into(),
         linear: None,
         prior: Default::default(),
+        fingerprint: String::new(),
+        correction: None,
     };
     t.validate().unwrap();
     t

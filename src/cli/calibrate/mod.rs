@@ -660,6 +660,8 @@ pub fn assemble_table(
         provenance: provenance(grid, &ranges),
         linear: None,
         prior: ranges,
+        fingerprint: String::new(),
+        correction: None,
     };
     let raw: Vec<RawEvent> = events.iter().map(|e| e.raw).collect();
     let table_coords: Vec<_> = vehicles
@@ -1152,6 +1154,8 @@ mod tests {
             provenance: String::new(),
             linear: None,
             prior: NuisanceRanges::default(),
+            fingerprint: String::new(),
+            correction: None,
         }
     }
 
