@@ -1,9 +1,12 @@
 //! `shimmy export`: a firmware-sim drive and the real RAV4 drive exported to a Parquet lake and
 //! read back with the parquet crate's reader. Checked against the other commands on the same
 //! logs: every decoded value equals `shimmy decode`'s, the events, the last estimate and the
-//! alerts standing equal `shimmy estimate --json`'s; the partition layout and names; the
-//! provenance columns (sha256 of the DBC and the table); a rerun rewrites byte-identical files
-//! and adds none; a corrupt log is reported and the others are still exported.
+//! alerts standing equal `shimmy estimate --json`'s (the estimate's `misfit` its verdict's
+//! reason, also on a vehicle the model does not fit); the partition layout and names; the
+//! provenance columns (sha256 of the DBC, the tables and the profile's correction, and the
+//! run's hash as docs/FLEET.md defines it); a rerun rewrites byte-identical files and adds
+//! none; a profile that names a correction stamps its hash and writes its rows under a run of
+//! their own; a corrupt log is reported and the others are still exported.
 //!
 //! The RAV4 drive comes from the shared data (SHIMMY_DATA_DIR); without it that test skips,
 //! except under CI=true where it fails.
@@ -18,9 +21,12 @@ use std::process::{Command, Output};
 use arrow_array::cast::AsArray;
 use arrow_array::types::{Float64Type, TimestampMicrosecondType, UInt32Type, UInt64Type};
 use arrow_array::{Array, RecordBatch};
+use arrow_schema::DataType;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use serde_json::Value;
 use sha2::{Digest, Sha256};
+use shimmy::observer::table::ResponseTable;
+use shimmy::observer::ObserverConfig;
 use shimmy::profile::Profile;
 
 fn shimmy(args: &[&std::ffi::OsStr]) -> Output {
@@ -300,6 +306,30 @@ fn check_tables_equal_estimate(
             );
         }
     }
+    // Every table's stamp: the torque table's and the correction's hashes (null without them),
+    // each a nullable Utf8, the correction's right after the torque table's.
+    let torque = profile.torque_table_path.as_deref().map(sha256_hex);
+    let correction = profile.correction_path.as_deref().map(sha256_hex);
+    for t in TABLES_DIRS {
+        for b in read_all(lake, files, t) {
+            let schema = b.schema();
+            let k = schema.index_of("torque_table_sha256").unwrap();
+            let f = schema.field(k + 1);
+            assert_eq!(f.name(), "correction_sha256", "{t}");
+            assert!(
+                f.is_nullable() && f.data_type() == &DataType::Utf8,
+                "{t}: {f:?}"
+            );
+            assert!(
+                strs(&b, "torque_table_sha256") == vec![torque.clone(); b.num_rows()],
+                "{t}: torque_table_sha256"
+            );
+            assert!(
+                strs(&b, "correction_sha256") == vec![correction.clone(); b.num_rows()],
+                "{t}: correction_sha256, want {correction:?}"
+            );
+        }
+    }
     rows.sort_by(|a, b| a.1.total_cmp(&b.1));
     let want = est["events"].as_array().unwrap();
     assert_eq!(rows.len(), want.len(), "events");
@@ -316,6 +346,8 @@ fn check_tables_equal_estimate(
     // The last estimate is the report's.
     let mut last: Option<(f64, RecordBatch, usize)> = None;
     for b in read_all(lake, files, "estimates") {
+        let f = b.schema().field_with_name("misfit").unwrap().clone();
+        assert!(f.is_nullable() && f.data_type() == &DataType::Utf8, "{f:?}");
         for (i, t) in f64s(&b, "t_event_end_s").into_iter().enumerate() {
             if last.as_ref().is_none_or(|(lt, _, _)| t.unwrap() >= *lt) {
                 last = Some((t.unwrap(), b.clone(), i));
@@ -346,6 +378,18 @@ fn check_tables_equal_estimate(
             .unwrap()
             .as_primitive::<UInt32Type>();
         assert_eq!(used.value(*i) as u64, est["events_used"].as_u64().unwrap());
+        // Why the model does not fit: the reason the verdict gives, null when it fits.
+        let verdict = est["verdict"].as_str().unwrap();
+        let why = verdict
+            .split_once("; but the model does not fit this vehicle: ")
+            .map(|(_, why)| why);
+        assert_eq!(strs(b, "misfit")[*i].as_deref(), why, "verdict {verdict:?}");
+        assert_eq!(
+            why.is_some(),
+            est["model_fit"]["fits"] == false,
+            "{}",
+            est["model_fit"]
+        );
     } else {
         assert!(est["clearance_mm"].is_null() && est["interval_mm"].is_null());
     }
@@ -626,4 +670,297 @@ fn a_drive_with_a_torque_exports_the_torque_and_its_table() {
             (a, b) => assert_eq!(a, b),
         }
     }
+}
+
+/// A vehicle on roads five times rougher than the table assumes (tests/model_fit_verdict.rs):
+/// `estimate` says the model does not fit it, and the lake's estimates say why, in `misfit`
+/// (null while the events were too few to tell).
+#[test]
+fn an_estimate_the_model_does_not_fit_carries_the_reason() {
+    let dir = tempfile::tempdir().unwrap();
+    let ws = e2e_common::workspace();
+    let model = std::fs::read_to_string(ws.join("config/vehicle/default.toml")).unwrap();
+    let rough = model.replace("noise_std_nm = 0.2 ", "noise_std_nm = 1.0 ");
+    assert_ne!(
+        rough, model,
+        "the road-noise key moved in config/vehicle/default.toml"
+    );
+    let plant = dir.path().join("rough.toml");
+    std::fs::write(&plant, rough).unwrap();
+    let sim = dir.path().join("sim");
+    let out = Command::new(e2e_common::firmware_sim())
+        .current_dir(ws)
+        .args(["fleet", "--profile", "shimmy_reference", "--vehicles", "1"])
+        .args([
+            "--events",
+            "12",
+            "--seed-base",
+            "77100",
+            "--logs-only",
+            "--plant",
+        ])
+        .arg(&plant)
+        .arg("--work-dir")
+        .arg(&sim)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "firmware-sim fleet: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let log = sim.join("fleet_77100.log");
+
+    let lake = dir.path().join("lake");
+    let out = export("shimmy_reference", "rough-1", &lake, &[&log]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let files = snapshot(&lake);
+    let est = estimate_json("shimmy_reference", &log);
+    assert_eq!(est["model_fit"]["fits"], false, "{}", est["model_fit"]);
+    // The last estimate's misfit is the verdict's reason (checked there).
+    let profile = Profile::load("shimmy_reference").unwrap();
+    check_tables_equal_estimate(&lake, &files, &est, &profile);
+    let misfits: Vec<Option<String>> = read_all(&lake, &files, "estimates")
+        .iter()
+        .flat_map(|b| strs(b, "misfit"))
+        .collect();
+    assert!(misfits.len() >= 2, "{misfits:?}");
+    let last = misfits.last().unwrap().as_deref().unwrap();
+    assert!(last.contains("goodness of fit z = "), "{last}");
+    // Before the fit check has degrees of freedom enough, the model is not said not to fit.
+    assert_eq!(misfits[0], None, "{misfits:?}");
+}
+
+/// A simulated RAV4 drive (firmware-sim, 4 braking events).
+fn rav4_sim_log(dir: &Path) -> PathBuf {
+    let work = dir.join("rav4_sim");
+    let out = Command::new(e2e_common::firmware_sim())
+        .current_dir(e2e_common::workspace())
+        .args(["fleet", "--profile", "toyota_rav4", "--vehicles", "1"])
+        .args([
+            "--events",
+            "4",
+            "--seed-base",
+            "7100",
+            "--logs-only",
+            "--work-dir",
+        ])
+        .arg(&work)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "firmware-sim fleet: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    work.join("fleet_7100.log")
+}
+
+/// A torque correction of the shipped RAV4 torque table (fitted against it: its fingerprint)
+/// with the vehicles' spread `spread_ln`.
+fn rav4_torque_correction(spread_ln: f64) -> String {
+    let table = e2e_common::workspace().join("config/vehicles/toyota_rav4/table_torque.json");
+    let fp = ResponseTable::load(&table).unwrap().fingerprint;
+    format!(
+        "[torque_nm]\ngain = [1.0, 1.0, 1.0]\ngain_se_ln = [0.0, 0.0, 0.0]\n\
+         spread_ln = {spread_ln:?}\nvehicles = 2\nevents = 20\nclearance_mm = 0.03\n\
+         table_fingerprint = {fp:?}\n"
+    )
+}
+
+/// A copy of the toyota_rav4 profile in `dir/name`, its tables the shipped ones (absolute
+/// paths), naming `correction.toml` with `correction` as its content.
+fn rav4_with_correction(dir: &Path, name: &str, correction: &str) -> PathBuf {
+    let src = e2e_common::workspace().join("config/vehicles/toyota_rav4");
+    let dst = dir.join(name);
+    std::fs::create_dir_all(&dst).unwrap();
+    for f in ["bus.toml", "mapping.toml", "profile.toml"] {
+        std::fs::copy(src.join(f), dst.join(f)).unwrap();
+    }
+    let abs = |name: &str| src.join(name).display().to_string();
+    let profile = std::fs::read_to_string(dst.join("profile.toml")).unwrap();
+    let rewritten = profile
+        .replacen(
+            "table = \"table.json\"",
+            &format!("table = {:?}", abs("table.json")),
+            1,
+        )
+        .replacen(
+            "torque_table = \"table_torque.json\"",
+            &format!("torque_table = {:?}", abs("table_torque.json")),
+            1,
+        );
+    assert!(
+        rewritten.contains(&abs("table.json")) && rewritten.contains(&abs("table_torque.json")),
+        "the RAV4 profile's table keys moved"
+    );
+    std::fs::write(
+        dst.join("profile.toml"),
+        format!("correction = \"correction.toml\"\n{rewritten}"),
+    )
+    .unwrap();
+    std::fs::write(dst.join("correction.toml"), correction).unwrap();
+    dst
+}
+
+/// The run's hash as docs/FLEET.md defines it: sha256 over the parts, each followed by a zero
+/// byte, the torque table's and the correction's only when the run has them.
+fn documented_run_sha256(profile: &Profile, vehicle: &str, logs: &[&Path]) -> String {
+    let settings = serde_json::to_vec(&ObserverConfig::default()).unwrap();
+    let settings = Sha256::digest(&settings)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect::<String>();
+    let mut parts = vec![
+        "shimmy-lake-run-2".to_string(),
+        concat!("shimmy-monitor ", env!("CARGO_PKG_VERSION")).to_string(),
+        vehicle.to_string(),
+        sha256_hex(&profile.dbc_path),
+        profile
+            .table_path
+            .as_deref()
+            .map(sha256_hex)
+            .unwrap_or("-".into()),
+        sha256_hex(&profile.mapping_path),
+        settings,
+    ];
+    if let Some(t) = &profile.torque_table_path {
+        parts.push(format!("torque:{}", sha256_hex(t)));
+    }
+    if let Some(c) = &profile.correction_path {
+        parts.push(format!("correction:{}", sha256_hex(c)));
+    }
+    parts.extend(logs.iter().map(|l| {
+        blake3::hash(&std::fs::read(l).unwrap())
+            .to_hex()
+            .to_string()
+    }));
+    let mut h = Sha256::new();
+    for p in parts {
+        h.update(p.as_bytes());
+        h.update([0]);
+    }
+    h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The `run_sha256` of every monitor row among `files` (sorted, deduplicated).
+fn runs(lake: &Path, files: &BTreeMap<PathBuf, Vec<u8>>) -> Vec<String> {
+    let mut out: Vec<String> = TABLES_DIRS
+        .iter()
+        .flat_map(|t| read_all(lake, files, t))
+        .flat_map(|b| strs(&b, "run_sha256"))
+        .map(Option::unwrap)
+        .collect();
+    out.sort();
+    out.dedup();
+    out
+}
+
+/// A profile that names a correction: every row carries the correction file's sha256 (null
+/// without one, the run's hash then as it was before corrections existed, so older lakes stay
+/// resumable), and the run's hash includes it: exported into the same lake, the corrected
+/// run's monitor rows land beside the uncorrected run's, which stay as they were, and a
+/// changed correction is another run again.
+#[test]
+fn a_profile_with_a_correction_stamps_its_hash_and_is_a_run_of_its_own() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = rav4_sim_log(dir.path());
+    let lake = dir.path().join("lake");
+
+    // The shipped profile names no correction.
+    let shipped = Profile::load("toyota_rav4").unwrap();
+    assert_eq!(shipped.correction_path, None);
+    let out = export("toyota_rav4", "rav4-1", &lake, &[&log]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let plain = snapshot(&lake);
+    check_tables_equal_estimate(&lake, &plain, &estimate_json("toyota_rav4", &log), &shipped);
+    let plain_run = documented_run_sha256(&shipped, "rav4-1", &[&log]);
+    assert_eq!(runs(&lake, &plain), [plain_run.clone()]);
+
+    // The same profile with a correction of its torque table.
+    let copy = rav4_with_correction(dir.path(), "rav4_corrected", &rav4_torque_correction(0.0));
+    let corrected = Profile::load_dir(&copy).unwrap();
+    let corr_file = copy.join("correction.toml");
+    assert_eq!(
+        corrected.correction_path.as_deref(),
+        Some(corr_file.as_path())
+    );
+    let name = copy.to_str().unwrap();
+    let out = export(name, "rav4-1", &lake, &[&log]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let both = snapshot(&lake);
+    for (p, bytes) in &plain {
+        assert!(both.get(p) == Some(bytes), "{p:?} changed or vanished");
+    }
+    let corr_run = documented_run_sha256(&corrected, "rav4-1", &[&log]);
+    assert_ne!(corr_run, plain_run);
+    let added: Vec<&PathBuf> = both.keys().filter(|p| !plain.contains_key(*p)).collect();
+    assert!(!added.is_empty());
+    for p in &added {
+        assert!(TABLES_DIRS.iter().any(|t| p.starts_with(t)), "{p:?}");
+        let stem = p.file_name().unwrap().to_string_lossy();
+        assert!(stem.starts_with(&corr_run[..16]), "{p:?}, run {corr_run}");
+    }
+    // The corrected run's rows (with the log's signal files) against its own estimate: the
+    // correction's hash in every row.
+    let own: BTreeMap<PathBuf, Vec<u8>> = both
+        .iter()
+        .filter(|(p, _)| !TABLES_DIRS.iter().any(|t| p.starts_with(t)) || added.contains(p))
+        .map(|(p, b)| (p.clone(), b.clone()))
+        .collect();
+    assert_eq!(runs(&lake, &own), [corr_run.clone()]);
+    let est = estimate_json(name, &log);
+    assert!(
+        est["events"].as_array().is_some_and(|e| !e.is_empty()),
+        "{est}"
+    );
+    check_tables_equal_estimate(&lake, &own, &est, &corrected);
+    let corr_sha = sha256_hex(&corr_file);
+    for t in TABLES_DIRS {
+        for b in read_all(&lake, &own, t) {
+            assert!(strs(&b, "correction_sha256")
+                .iter()
+                .all(|s| s.as_deref() == Some(corr_sha.as_str())));
+        }
+    }
+
+    // A rerun is a resume: nothing changes.
+    let again = export(name, "rav4-1", &lake, &[&log]);
+    assert!(again.status.success());
+    assert!(snapshot(&lake) == both, "a rerun changed the lake");
+
+    // A changed correction is another run.
+    std::fs::write(&corr_file, rav4_torque_correction(0.1)).unwrap();
+    let changed = Profile::load_dir(&copy).unwrap();
+    let changed_run = documented_run_sha256(&changed, "rav4-1", &[&log]);
+    assert!(changed_run != corr_run && changed_run != plain_run);
+    let out = export(name, "rav4-1", &lake, &[&log]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let three = snapshot(&lake);
+    assert!(three.keys().filter(|p| !both.contains_key(*p)).all(|p| p
+        .file_name()
+        .unwrap()
+        .to_string_lossy()
+        .starts_with(&changed_run[..16])));
+    assert_eq!(runs(&lake, &three), {
+        let mut r = vec![plain_run, corr_run, changed_run];
+        r.sort();
+        r
+    });
 }

@@ -244,6 +244,7 @@ def _empty_events():
             ("table_sha256", pa.string()),
             ("dbc_sha256", pa.string()),
             ("torque_table_sha256", pa.string()),
+            ("correction_sha256", pa.string()),
             ("vehicle", pa.string()),
             ("date", pa.string()),
         ]

@@ -159,6 +159,11 @@ def test_events_is_the_lakes_events_table(shimmy_bin, sim_logs, tmp_path):
     )
     assert ev.schema.names == lake.schema.names
     assert rows(ev) == rows(lake)
+    # The schema events() gives when no event was recorded is the same (the provenance columns
+    # included: torque_table_sha256, correction_sha256).
+    assert [(f.name, f.type) for f in sm._empty_events().schema] == [
+        (f.name, f.type) for f in ev.schema
+    ]
     # And in the run's order: the estimate's events.
     est = cli_estimate(shimmy_bin, "toyota_rav4", sim_logs)
     assert ev.column("t_end_s").to_pylist() == [e["t_end"] for e in est["events"]]

@@ -29,14 +29,15 @@ use crate::profile::Profile;
 ///                                                            cleared)
 /// The monitor's tables come from the same pipeline as `shimmy estimate` over the same logs in
 /// the same order (every row carries the model version, the BLAKE3 of the log, as `b3sum` prints
-/// it, and the sha256 of the run, the response table and the DBC). docs/FLEET.md lists every
-/// column.
+/// it, and the sha256 of the run, the response table, the DBC, and the torque table and the
+/// profile's correction when it has them). docs/FLEET.md lists every column.
 ///
 /// Appending and rerunning: file names derive from the content of the inputs (the log's BLAKE3
-/// for signals; the run's hash, over every log, the DBC, mapping, table and settings, for the
-/// monitor's tables) and the bytes written are reproducible, so exporting the same logs again
-/// rewrites the same files and adds none: a failed or interrupted run is resumed by running it
-/// again. Files are written under hidden temporary names and renamed when complete.
+/// for signals; the run's hash, over every log, the DBC, mapping, tables, correction and
+/// settings, for the monitor's tables) and the bytes written are reproducible, so exporting the
+/// same logs again rewrites the same files and adds none: a failed or interrupted run is resumed
+/// by running it again. Files are written under hidden temporary names and renamed when
+/// complete.
 ///
 /// Dates: the UTC date of each frame's timestamp (of the event's end for the monitor's tables).
 /// A log whose timestamps count from its start rather than from 1970 (e.g. candump written by a
@@ -141,12 +142,21 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
         (Some(_), Some(p)) => Some(sha256_file(p)?),
         _ => None,
     };
+    // The tables above were loaded with the correction applied (and refused had it been
+    // fitted against another table); every estimate depends on it.
+    let correction_sha256 = match &profile.correction_path {
+        Some(p) => {
+            Some(sha256_file(p).with_context(|| format!("profile {}: correction", profile.name))?)
+        }
+        None => None,
+    };
     let settings_json = serde_json::to_vec(&cfg).context("serialising the monitor's settings")?;
     let inputs = Inputs {
         vehicle: args.vehicle.clone(),
         dbc_sha256: sha256_file(&profile.dbc_path)?,
         table_sha256,
         torque_table_sha256,
+        correction_sha256,
         mapping_sha256: sha256_file(&profile.mapping_path)?,
         settings_sha256: sha256_bytes(&settings_json),
     };

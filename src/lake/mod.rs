@@ -15,7 +15,8 @@
 //!
 //! Names: `log16` is the first 16 hex digits of the log's BLAKE3 hash, `dbc8` of the DBC's
 //! sha256 (the signal files depend on nothing else); `run16` of the run's hash ([`run_sha256`]:
-//! every log's hash in order, the DBC, mapping, table and settings), `nnnn` the log's position
+//! every log's hash in order, the DBC, mapping, table and settings, and the torque table and
+//! the profile's correction when the run has them), `nnnn` the log's position
 //! in the run (the monitor's rows depend on every log before them), `seq` the message's files
 //! of that log.
 //! Dates are the UTC dates of the frames' timestamps (signals) or of the event's end (tables).
@@ -177,13 +178,18 @@ pub struct Inputs {
     pub table_sha256: Option<String>,
     /// sha256 of the profile's torque table, when the run used one.
     pub torque_table_sha256: Option<String>,
+    /// sha256 of the profile's correction file (`correction`, src/observer/correction.rs),
+    /// when the profile names one: it changes every estimate.
+    pub correction_sha256: Option<String>,
     /// sha256 of the mapping file and of the monitor's settings as used (their JSON).
     pub mapping_sha256: String,
     pub settings_sha256: String,
 }
 
 /// The run's hash (sha256): the model version, every input's hash and every log's BLAKE3, in
-/// order.
+/// order. The torque table's and the correction's hashes are parts only when the run has them,
+/// so that a run without them keeps the hash it had before they existed (its lake stays
+/// resumable) and a run whose correction changed gets another hash.
 pub fn run_sha256(inputs: &Inputs, log_blake3: &[String]) -> String {
     let mut h = Sha256::new();
     for part in [
@@ -202,6 +208,12 @@ pub fn run_sha256(inputs: &Inputs, log_blake3: &[String]) -> String {
     if let Some(t) = &inputs.torque_table_sha256 {
         h.update(b"torque:");
         h.update(t.as_bytes());
+        h.update([0]);
+    }
+    // Likewise a run without a correction.
+    if let Some(c) = &inputs.correction_sha256 {
+        h.update(b"correction:");
+        h.update(c.as_bytes());
         h.update([0]);
     }
     for s in log_blake3 {
@@ -426,6 +438,7 @@ impl Exporter {
                 table_sha256: self.inputs.table_sha256.clone(),
                 dbc_sha256: self.inputs.dbc_sha256.clone(),
                 torque_table_sha256: self.inputs.torque_table_sha256.clone(),
+                correction_sha256: self.inputs.correction_sha256.clone(),
             };
             closed.extend(self.write_log_rows(index, &stamp, &rows, &schemas)?);
         }
@@ -475,5 +488,64 @@ impl Exporter {
             run_sha256: run,
             pipe: self.pipe,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn inputs() -> Inputs {
+        Inputs {
+            vehicle: "rav4-1".into(),
+            dbc_sha256: "d".repeat(64),
+            table_sha256: Some("t".repeat(64)),
+            torque_table_sha256: Some("q".repeat(64)),
+            correction_sha256: None,
+            mapping_sha256: "m".repeat(64),
+            settings_sha256: "s".repeat(64),
+        }
+    }
+
+    /// The run's hash as it was before corrections existed (docs/FLEET.md's formula).
+    fn before_corrections(i: &Inputs, logs: &[String]) -> String {
+        let mut h = Sha256::new();
+        let v = model_version();
+        let mut parts = vec![
+            "shimmy-lake-run-2".to_string(),
+            v,
+            i.vehicle.clone(),
+            i.dbc_sha256.clone(),
+            i.table_sha256.clone().unwrap_or("-".into()),
+            i.mapping_sha256.clone(),
+            i.settings_sha256.clone(),
+        ];
+        if let Some(t) = &i.torque_table_sha256 {
+            parts.push(format!("torque:{t}"));
+        }
+        parts.extend(logs.iter().cloned());
+        for p in parts {
+            h.update(p.as_bytes());
+            h.update([0]);
+        }
+        hex(&h.finalize())
+    }
+
+    #[test]
+    fn a_run_without_a_correction_keeps_its_hash_and_a_correction_changes_it() {
+        let logs = vec!["a".repeat(64), "b".repeat(64)];
+        let mut i = inputs();
+        let plain = run_sha256(&i, &logs);
+        assert_eq!(plain, before_corrections(&i, &logs));
+        i.torque_table_sha256 = None;
+        assert_eq!(run_sha256(&i, &logs), before_corrections(&i, &logs));
+        i.torque_table_sha256 = inputs().torque_table_sha256;
+        i.correction_sha256 = Some("c".repeat(64));
+        let corrected = run_sha256(&i, &logs);
+        assert_ne!(corrected, plain);
+        i.correction_sha256 = Some("e".repeat(64));
+        let other = run_sha256(&i, &logs);
+        assert_ne!(other, corrected);
+        assert_ne!(other, plain);
     }
 }

@@ -1,8 +1,9 @@
 //! The monitor's own tables as Arrow record batches: `events` (one row per finished braking
 //! event), `estimates` (the clearance estimate after each event) and `alerts` (every alert
 //! transition: raised, updated, cleared), each row stamped with where it came from
-//! ([`Stamp`]: the log, the run, the model version, the response table's and the DBC's
-//! hashes). Rows are grouped by the UTC date of the event's end, the tables' Hive partition.
+//! ([`Stamp`]: the log, the run, the model version, the response table's, the DBC's, the torque
+//! table's and the correction's hashes). Rows are grouped by the UTC date of the event's end,
+//! the tables' Hive partition.
 //!
 //! What it is not: the pipeline that makes the rows ([`crate::pipeline::Monitor`] does, the same
 //! one `shimmy estimate` runs), file naming ([`super`]) or Parquet writing ([`super::write`]).
@@ -35,6 +36,8 @@ pub struct Stamp {
     pub dbc_sha256: String,
     /// sha256 of the torque table file (hex); None when the run had none.
     pub torque_table_sha256: Option<String>,
+    /// sha256 of the profile's correction file (hex); None when the profile names none.
+    pub correction_sha256: Option<String>,
 }
 
 /// The three tables' names, as their folders under the lake are named.
@@ -48,6 +51,7 @@ fn stamp_fields() -> Vec<Field> {
         Field::new("table_sha256", DataType::Utf8, true),
         Field::new("dbc_sha256", DataType::Utf8, false),
         Field::new("torque_table_sha256", DataType::Utf8, true),
+        Field::new("correction_sha256", DataType::Utf8, true),
     ]
 }
 
@@ -91,6 +95,7 @@ pub fn estimates_schema() -> SchemaRef {
         f64n("below_mm"),
         f64n("p_above"),
         Field::new("events_used", DataType::UInt32, false),
+        Field::new("misfit", DataType::Utf8, true),
     ];
     f.extend(stamp_fields());
     Arc::new(Schema::new(f))
@@ -176,6 +181,7 @@ fn stamp_columns(stamp: &Stamp, n: usize) -> Vec<ArrayRef> {
         col(stamp.table_sha256.as_deref()),
         col(Some(&stamp.dbc_sha256)),
         col(stamp.torque_table_sha256.as_deref()),
+        col(stamp.correction_sha256.as_deref()),
     ]
 }
 
@@ -254,6 +260,7 @@ fn estimates_batch(rows: &[&Finished], stamp: &Stamp) -> anyhow::Result<Option<R
     );
     let mut det = BooleanBuilder::new();
     let mut used = UInt32Builder::new();
+    let mut misfit = StringBuilder::new();
     let mut n = 0;
     for f in rows {
         let Some(e) = &f.estimate else { continue };
@@ -267,6 +274,7 @@ fn estimates_batch(rows: &[&Finished], stamp: &Stamp) -> anyhow::Result<Option<R
         below.append_option(e.below_mm);
         p.append_option(e.p_above);
         used.append_value(e.events_used);
+        misfit.append_option(e.misfit.as_deref());
     }
     let cols: Vec<ArrayRef> = vec![
         Arc::new(t.finish()),
@@ -278,6 +286,7 @@ fn estimates_batch(rows: &[&Finished], stamp: &Stamp) -> anyhow::Result<Option<R
         Arc::new(below.finish()),
         Arc::new(p.finish()),
         Arc::new(used.finish()),
+        Arc::new(misfit.finish()),
     ];
     finish(estimates_schema(), cols, stamp, n)
 }
