@@ -473,6 +473,14 @@ impl Observer {
     /// the report's verdict and the clearance alert carry). `(None, None)` before the check
     /// has anything to judge.
     pub fn fit_check(&self) -> (Option<fit::ModelFit>, Option<String>) {
+        self.fit_check_with(&self.measured_noise())
+    }
+
+    /// [`Self::fit_check`] on the noise already measured ([`Self::measured_noise`]).
+    fn fit_check_with(
+        &self,
+        measured: &[noise_floor::MeasuredNoise],
+    ) -> (Option<fit::ModelFit>, Option<String>) {
         let z_max = self.cfg.estimator.fit_z_max;
         let torque_active = self.torque.as_ref().is_some_and(TorqueChannel::active);
         let active_signal = if torque_active {
@@ -480,9 +488,8 @@ impl Observer {
         } else {
             features::SteerSignal::AngleDeg
         };
-        let noisy = self
-            .measured_noise()
-            .into_iter()
+        let noisy = measured
+            .iter()
             .find(|n| n.above_assumed && n.signal == active_signal);
         let Some(f) = self.active_estimator().and_then(|e| {
             let (dev, dof) = e.fit()?;
@@ -559,7 +566,7 @@ impl Observer {
                     measured_rms: m.sqrt(),
                     assumed_rms: a.sqrt(),
                     stops: self.noise_floor.stops(ch),
-                    above_assumed: self.noise_floor.excess_variance(ch, a, ratio) > 0.0,
+                    above_assumed: self.noise_floor.exceeds(ch, a, ratio),
                 });
             }
         }
@@ -884,7 +891,7 @@ impl Observer {
             verdict
         };
         let sensor_noise = self.measured_noise();
-        let (model_fit, misfit) = self.fit_check();
+        let (model_fit, misfit) = self.fit_check_with(&sensor_noise);
         let verdict = match misfit {
             Some(why) => format!("{verdict}; but the model does not fit this vehicle: {why}"),
             None => verdict,

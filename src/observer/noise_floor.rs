@@ -177,13 +177,11 @@ impl NoiseFloor {
         self.channels[ch as usize].stops.len()
     }
 
-    /// The measured variance above `assumed_var` when the measured RMS exceeds `ratio` times
-    /// the assumed RMS, else 0 (and always 0 with `ratio` 0, which turns the check off).
-    pub fn excess_variance(&self, ch: Channel, assumed_var: f64, ratio: f64) -> f64 {
-        match self.variance(ch) {
-            Some(m) if ratio > 0.0 && m > ratio * ratio * assumed_var => m - assumed_var,
-            _ => 0.0,
-        }
+    /// Whether the measured RMS exceeds `ratio` times the assumed RMS (`assumed_var` its
+    /// square); never with `ratio` 0, which turns the check off, or without a measurement.
+    pub fn exceeds(&self, ch: Channel, assumed_var: f64, ratio: f64) -> bool {
+        self.variance(ch)
+            .is_some_and(|m| ratio > 0.0 && m > ratio * ratio * assumed_var)
     }
 }
 
@@ -250,12 +248,13 @@ mod tests {
         let rms = m.variance(Channel::Torque).unwrap().sqrt();
         assert!((rms / 0.06 - 1.0).abs() < 0.1, "{rms}");
         assert_eq!(m.variance(Channel::Angle), None);
-        // The excess over a table's 0.02 N·m, and none below the ratio or with it off.
+        // Above a table's 0.02 N·m × 1.5; not above 0.05 N·m × 1.5, nor with the check off, nor
+        // on a channel without a measurement.
         let assumed = 0.02f64 * 0.02;
-        let e = m.excess_variance(Channel::Torque, assumed, 1.5);
-        assert!((e - (rms * rms - assumed)).abs() < 1e-12);
-        assert_eq!(m.excess_variance(Channel::Torque, 0.05 * 0.05, 1.5), 0.0);
-        assert_eq!(m.excess_variance(Channel::Torque, assumed, 0.0), 0.0);
+        assert!(m.exceeds(Channel::Torque, assumed, 1.5));
+        assert!(!m.exceeds(Channel::Torque, 0.05 * 0.05, 1.5));
+        assert!(!m.exceeds(Channel::Torque, assumed, 0.0));
+        assert!(!m.exceeds(Channel::Angle, 1e-12, 1.5));
     }
 
     #[test]
