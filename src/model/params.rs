@@ -55,6 +55,23 @@ pub struct Braking {
     pub pitch_freq_hz: f64,
     /// ζ_p: body pitch damping ratio.
     pub pitch_damping_ratio: f64,
+    /// ε_L, ε_R: brake-torque variation at wheel order per front wheel, relative to the brake
+    /// force (a disc thickness variation): F_b,i·(1 + ε_i·cos(φ_w + δ_i)) while braking, φ_w
+    /// the wheels' spin angle. Not in the 5-DOF spec: MODEL.md §14 names it as the
+    /// clearance-independent shake a non-zero scrub radius turns into a steering moment. 0 (the
+    /// default) is left out of the serialised form, so vehicle files and hashes written before
+    /// it existed stay the same.
+    #[serde(skip_serializing_if = "both_zero")]
+    pub torque_variation_rel: [f64; 2],
+    /// δ_L, δ_R: where each disc's thickest point sits on the wheel (deg). Variations in phase
+    /// (equal δ) push the wheels toward toe-in and toe-out together, which the rack does not
+    /// feel; 180° apart they steer both wheels one way, which it does.
+    #[serde(skip_serializing_if = "both_zero")]
+    pub torque_variation_phase_deg: [f64; 2],
+}
+
+fn both_zero(x: &[f64; 2]) -> bool {
+    x[0] == 0.0 && x[1] == 0.0
 }
 
 impl Default for Braking {
@@ -66,6 +83,8 @@ impl Default for Braking {
             v_stop_mps: 0.5,
             pitch_freq_hz: 1.5,
             pitch_damping_ratio: 0.5,
+            torque_variation_rel: [0.0; 2],
+            torque_variation_phase_deg: [0.0; 2],
         }
     }
 }
@@ -480,6 +499,19 @@ impl VehicleParams {
         pos("braking.v_stop_mps", b.v_stop_mps)?;
         pos("braking.pitch_freq_hz", b.pitch_freq_hz)?;
         pos("braking.pitch_damping_ratio", b.pitch_damping_ratio)?;
+        for i in 0..2 {
+            range(
+                "braking.torque_variation_rel",
+                b.torque_variation_rel[i],
+                0.0,
+                0.5,
+                "must lie in [0, 0.5]",
+            )?;
+            finite(
+                "braking.torque_variation_phase_deg",
+                b.torque_variation_phase_deg[i],
+            )?;
+        }
 
         let s = &self.steering;
         pos("steering.kingpin_half_spacing_m", s.kingpin_half_spacing_m)?;

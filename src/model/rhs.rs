@@ -295,6 +295,10 @@ pub struct Model {
     pub zeta_p: f64,
     pub unbalance: f64,
     pub phases: [f64; 2],
+    /// Brake-torque variation per wheel: (ε_i, cos(δ_i − φ_i), sin(δ_i − φ_i)) (params
+    /// `braking.torque_variation_*`, φ_i the unbalance phase; ε = 0 leaves the brake force as
+    /// §6 has it).
+    pub torque_variation: [(f64, f64, f64); 2],
     pub noise_ref_speed: f64,
     // §15
     pub column: bool,
@@ -376,6 +380,13 @@ impl Model {
             zeta_p: p.braking.pitch_damping_ratio,
             unbalance: unbalance_kgm,
             phases,
+            // cos(φ_w + δ_i) = cos((φ_w + φ_i) + (δ_i − φ_i)): the shift from the unbalance
+            // angle the step already has.
+            torque_variation: [0, 1].map(|i| {
+                let d = p.braking.torque_variation_phase_deg[i].to_radians() - phases[i];
+                let (sd, cd) = d.sin_cos();
+                (p.braking.torque_variation_rel[i], cd, sd)
+            }),
             noise_ref_speed: p.excitation.noise_ref_speed_mps,
             column: c.enabled,
             j_sw: c.inertia_kgm2,
@@ -529,6 +540,19 @@ impl Model {
         self.eval_with(t, y, ctx, &Trig::exact(self, y), None, dy, aux);
     }
 
+    /// Wheel `i`'s brake force: §6's `f_long` while braking, times 1 + ε_i·cos(φ_w + δ_i)
+    /// with a brake-torque variation (`ph` = (sin, cos) of φ_w + φ_i, [`Trig`]). Exactly
+    /// `f_long` without one or while driving.
+    #[inline(always)]
+    fn brake_force(&self, i: usize, f_long: f64, a_dem: f64, (s_ph, c_ph): (f64, f64)) -> f64 {
+        let (eps, cd, sd) = self.torque_variation[i];
+        if eps == 0.0 || a_dem <= 0.0 {
+            f_long
+        } else {
+            f_long * (1.0 + eps * (c_ph * cd - s_ph * sd))
+        }
+    }
+
     /// Vertical load F_z of wheel `i` (§5.1: static share, braking transfer through the
     /// filtered deceleration, roll, unbalance), floored at `fz_floor`.
     #[inline(always)]
@@ -586,7 +610,7 @@ impl Model {
             let (fx, fy, mz, sigma, kappa) = self.tire_forces(
                 fz,
                 y[ix::AL + i],
-                f_long,
+                self.brake_force(i, f_long, a_dem, tr.ph[i]),
                 ctx.kappa_guess[i],
                 true,
                 ctx.mf_table,
@@ -661,7 +685,7 @@ impl Model {
                     None => self.tire_forces(
                         fz,
                         alpha_t,
-                        f_long,
+                        self.brake_force(i, f_long, a_dem, (s_ph, c_ph)),
                         ctx.kappa_guess[i],
                         ctx.warm_slip,
                         ctx.mf_table,
