@@ -775,32 +775,11 @@ fn rav4_torque_correction(spread_ln: f64) -> String {
 /// A copy of the toyota_rav4 profile in `dir/name`, its tables the shipped ones (absolute
 /// paths), naming `correction.toml` with `correction` as its content.
 fn rav4_with_correction(dir: &Path, name: &str, correction: &str) -> PathBuf {
-    let src = e2e_common::workspace().join("config/vehicles/toyota_rav4");
-    let dst = dir.join(name);
-    std::fs::create_dir_all(&dst).unwrap();
-    for f in ["bus.toml", "mapping.toml", "profile.toml"] {
-        std::fs::copy(src.join(f), dst.join(f)).unwrap();
-    }
-    let abs = |name: &str| src.join(name).display().to_string();
+    let dst = e2e_common::profile_copy("toyota_rav4", dir, name);
     let profile = std::fs::read_to_string(dst.join("profile.toml")).unwrap();
-    let rewritten = profile
-        .replacen(
-            "table = \"table.json\"",
-            &format!("table = {:?}", abs("table.json")),
-            1,
-        )
-        .replacen(
-            "torque_table = \"table_torque.json\"",
-            &format!("torque_table = {:?}", abs("table_torque.json")),
-            1,
-        );
-    assert!(
-        rewritten.contains(&abs("table.json")) && rewritten.contains(&abs("table_torque.json")),
-        "the RAV4 profile's table keys moved"
-    );
     std::fs::write(
         dst.join("profile.toml"),
-        format!("correction = \"correction.toml\"\n{rewritten}"),
+        format!("correction = \"correction.toml\"\n{profile}"),
     )
     .unwrap();
     std::fs::write(dst.join("correction.toml"), correction).unwrap();

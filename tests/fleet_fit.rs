@@ -13,37 +13,14 @@ use serde_json::Value;
 /// A copy of the toyota_rav4 profile in `dir` whose mapping reads the steering torque ×1.3, its
 /// tables the shipped ones (absolute paths).
 fn rav4_reading_torque_high(dir: &Path) -> PathBuf {
-    let src = e2e_common::workspace().join("config/vehicles/toyota_rav4");
-    let dst = dir.join("rav4_torque_high");
-    std::fs::create_dir_all(&dst).unwrap();
-    for f in ["bus.toml", "mapping.toml", "profile.toml"] {
-        std::fs::copy(src.join(f), dst.join(f)).unwrap();
-    }
+    let dst = e2e_common::profile_copy("toyota_rav4", dir, "rav4_torque_high");
     let mapping = std::fs::read_to_string(dst.join("mapping.toml")).unwrap();
     let (head, tail) = mapping
         .split_once("[steer_torque]")
         .expect("the RAV4 maps a steering torque");
-    let tail = tail.replacen("scale = 0.01\n", "scale = 0.013\n", 1);
-    assert_ne!(tail, mapping.split_once("[steer_torque]").unwrap().1);
-    std::fs::write(
-        dst.join("mapping.toml"),
-        format!("{head}[steer_torque]{tail}"),
-    )
-    .unwrap();
-    let profile = std::fs::read_to_string(dst.join("profile.toml")).unwrap();
-    let abs = |name: &str| src.join(name).display().to_string();
-    let profile = profile
-        .replacen(
-            "table = \"table.json\"",
-            &format!("table = {:?}", abs("table.json")),
-            1,
-        )
-        .replacen(
-            "torque_table = \"table_torque.json\"",
-            &format!("torque_table = {:?}", abs("table_torque.json")),
-            1,
-        );
-    std::fs::write(dst.join("profile.toml"), profile).unwrap();
+    let high = tail.replacen("scale = 0.01\n", "scale = 0.013\n", 1);
+    assert_ne!(high, tail, "the RAV4's torque scale moved");
+    std::fs::write(dst.join("mapping.toml"), format!("{head}[steer_torque]{high}")).unwrap();
     dst
 }
 

@@ -516,3 +516,35 @@ impl Drop for LiveDaemon {
         }
     }
 }
+
+/// A copy of the shipped profile `profile` in `dir/name` (its bus, mapping and profile files)
+/// whose tables are the shipped ones by absolute path: a profile to change (its mapping, a
+/// correction) without rebuilding tables.
+pub fn profile_copy(profile: &str, dir: &Path, name: &str) -> PathBuf {
+    let src = workspace().join("config/vehicles").join(profile);
+    let dst = dir.join(name);
+    std::fs::create_dir_all(&dst).unwrap();
+    for f in ["bus.toml", "mapping.toml", "profile.toml"] {
+        std::fs::copy(src.join(f), dst.join(f)).unwrap();
+    }
+    let abs = |name: &str| src.join(name).display().to_string();
+    let text = std::fs::read_to_string(dst.join("profile.toml")).unwrap();
+    let mut rewritten = text.replacen(
+        "table = \"table.json\"",
+        &format!("table = {:?}", abs("table.json")),
+        1,
+    );
+    if text.contains("torque_table = \"table_torque.json\"") {
+        rewritten = rewritten.replacen(
+            "torque_table = \"table_torque.json\"",
+            &format!("torque_table = {:?}", abs("table_torque.json")),
+            1,
+        );
+    }
+    assert!(
+        rewritten.contains(&abs("table.json")),
+        "profile {profile}'s table key moved"
+    );
+    std::fs::write(dst.join("profile.toml"), rewritten).unwrap();
+    dst
+}
