@@ -20,7 +20,11 @@ fn rav4_reading_torque_high(dir: &Path) -> PathBuf {
         .expect("the RAV4 maps a steering torque");
     let high = tail.replacen("scale = 0.01\n", "scale = 0.013\n", 1);
     assert_ne!(high, tail, "the RAV4's torque scale moved");
-    std::fs::write(dst.join("mapping.toml"), format!("{head}[steer_torque]{high}")).unwrap();
+    std::fs::write(
+        dst.join("mapping.toml"),
+        format!("{head}[steer_torque]{high}"),
+    )
+    .unwrap();
     dst
 }
 

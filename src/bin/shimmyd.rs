@@ -19,6 +19,11 @@ use shimmy::daemon::sandbox;
 /// it with `shimmy report --journal DIR`), the state (`outputs.state_dir`), counters on stderr
 /// every `log.counters_interval_s`. SIGTERM stops cleanly, SIGHUP reloads `[alerts]` and `[log]`.
 /// No network listener is opened; the bus is written only when `outputs.transmit = true`.
+///
+/// After a joint replacement: `shimmyd --config FILE --joints-replaced [MM]` tells the running
+/// daemon (or the next one started) through the marker file `<state_dir>/joints_replaced`: it
+/// clears the alerts, resets the estimate and takes the next `vehicle.baseline_events` braking
+/// events as the car's baseline at MM mm (default `vehicle.baseline_clearance_mm`).
 #[derive(Parser, Debug)]
 #[command(name = "shimmyd", version, verbatim_doc_comment)]
 struct Cli {
@@ -51,6 +56,21 @@ struct Cli {
     /// every `systemctl daemon-reload` (docs/GATEWAY.md).
     #[arg(long, conflicts_with_all = ["check", "replay"])]
     sandbox_dropin: bool,
+    /// The steering joints were just replaced: write the marker `<state_dir>/joints_replaced`
+    /// (with MM, the new joints' clearance in mm; without, `vehicle.baseline_clearance_mm`
+    /// applies) for the daemon running with this configuration, and exit. The daemon takes it
+    /// within seconds (or at its next start): it journals the replacement, clears the alerts,
+    /// resets the clearance estimate and takes the next `vehicle.baseline_events` used braking
+    /// events as the car's new baseline. Needs write access to the state directory
+    /// (docs/GATEWAY.md).
+    #[arg(
+        long,
+        value_name = "MM",
+        num_args = 0..=1,
+        default_missing_value = "",
+        conflicts_with_all = ["check", "replay", "sandbox_dropin"]
+    )]
+    joints_replaced: Option<String>,
     /// Test helper (crash tests): append numbered records to the journal in DIR forever,
     /// printing each acknowledged (fsynced) sequence number on stdout.
     #[arg(long, value_name = "DIR", hide = true)]
@@ -112,13 +132,43 @@ fn sandbox_dropin(path: &std::path::Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `--joints-replaced [MM]`: the marker in the configuration's state directory.
+fn joints_replaced(
+    path: &std::path::Path,
+    profile: Option<&str>,
+    state_dir: Option<PathBuf>,
+    mm: &str,
+) -> anyhow::Result<()> {
+    let c = Config::load_with_profile(path, profile)?;
+    let dir = state_dir.unwrap_or(c.outputs.state_dir);
+    // Without MM the configuration's clearance is written, so the marker is never empty (the
+    // daemon waits a moment before taking an empty one, which may be being written).
+    let default = c.vehicle.baseline_clearance_mm.to_string();
+    let (content, from) = match mm.trim() {
+        "" => (default.as_str(), " (vehicle.baseline_clearance_mm)"),
+        given => (given, ""),
+    };
+    let marker = shimmy::daemon::joints::write_marker(&dir, content)?;
+    eprintln!(
+        "shimmyd: wrote {} (new joints at {content} mm{from}); the daemon using {} takes it \
+         within seconds, or at its next start, and collects the next {} used braking event(s) \
+         as the car's baseline",
+        marker.display(),
+        dir.display(),
+        c.vehicle.baseline_events
+    );
+    Ok(())
+}
+
 fn main() {
     let cli = Cli::parse();
     let result = if let Some(dir) = &cli.journal_stress {
         journal_stress(dir)
     } else {
         let config = cli.config.expect("clap requires --config");
-        if cli.sandbox_dropin {
+        if let Some(mm) = &cli.joints_replaced {
+            joints_replaced(&config, cli.profile.as_deref(), cli.state_dir, mm)
+        } else if cli.sandbox_dropin {
             sandbox_dropin(&config)
         } else if cli.check {
             check(&config, cli.profile.as_deref())
@@ -132,7 +182,7 @@ fn main() {
                     state_dir: cli.state_dir,
                     journal_dir: None,
                 },
-                &shimmy::daemon::stage::for_config,
+                &shimmy::daemon::stage::for_daemon,
             )
         }
     };

@@ -141,12 +141,19 @@ pub struct VehicleSection {
     /// Logs of this vehicle driven when its joints' clearance was known (its first drives
     /// after a joint replacement): their braking events become the vehicle's baseline, which
     /// conditions every estimate (`shimmy estimate --baseline`; docs/ACCURACY.md). Read at
-    /// start; while set it takes the place of a baseline the saved state holds.
+    /// start; while set it takes the place of a baseline the saved state holds, except one
+    /// collected after a joint replacement marked later (`<state_dir>/joints_replaced`,
+    /// [`super::joints`]), which is newer.
     #[serde(default)]
     pub baseline_logs: Vec<PathBuf>,
-    /// The joints' clearance during the `baseline_logs` (mm).
+    /// The joints' clearance during the `baseline_logs` (mm); also the new joints' clearance
+    /// of a joint replacement whose marker gives none.
     #[serde(default = "default_baseline_clearance_mm")]
     pub baseline_clearance_mm: f64,
+    /// After a joint replacement (the marker `<state_dir>/joints_replaced`): how many used
+    /// braking events become the new baseline (1..=1000).
+    #[serde(default = "default_baseline_events")]
+    pub baseline_events: u32,
     /// Odometer at first start when no state exists yet (km).
     #[serde(default)]
     pub initial_odometer_km: f64,
@@ -155,6 +162,13 @@ pub struct VehicleSection {
 fn default_baseline_clearance_mm() -> f64 {
     0.03
 }
+
+fn default_baseline_events() -> u32 {
+    10
+}
+
+/// Most events `vehicle.baseline_events` may ask for.
+pub const MAX_BASELINE_EVENTS: u32 = 1000;
 
 /// A configuration without `[vehicle]` (or with an empty one) has what each key defaults to.
 impl Default for VehicleSection {
@@ -165,6 +179,7 @@ impl Default for VehicleSection {
             torque_table: None,
             baseline_logs: Vec::new(),
             baseline_clearance_mm: default_baseline_clearance_mm(),
+            baseline_events: default_baseline_events(),
             initial_odometer_km: 0.0,
         }
     }
@@ -592,6 +607,10 @@ impl Config {
         let c = self.vehicle.baseline_clearance_mm;
         if !(c > 0.0 && c.is_finite()) {
             bail!("vehicle.baseline_clearance_mm: {c} is not a clearance above 0 mm");
+        }
+        let n = self.vehicle.baseline_events;
+        if !(1..=MAX_BASELINE_EVENTS).contains(&n) {
+            bail!("vehicle.baseline_events: must be 1..={MAX_BASELINE_EVENTS} (got {n})");
         }
         for (i, name) in self.input.interfaces.iter().enumerate() {
             if name.is_empty() || name.len() > 15 || name.contains('/') {

@@ -9,8 +9,9 @@
 //! |---|---|
 //! | [`config`] | the TOML file, validated with key-naming errors |
 //! | [`counters`] | the per-interval counters line (frames, decode errors, invalid messages, events) |
-//! | [`stage`] | the event stage for a configuration (the observer, with the configured table) |
-//! | [`state`] | atomic persistence of estimate, event history, odometer, open alerts |
+//! | [`joints`] | the workshop's "joints replaced" marker file in the state directory: looked at, checked, renamed when bad, removed when handled, written by `shimmyd --joints-replaced` |
+//! | [`stage`] | the event stage for a configuration (the observer, with the configured table), and what the daemon asks of it beyond the pipeline's seam (a joint replacement) |
+//! | [`state`] | atomic persistence of estimate, event history, odometer, open alerts, the last joint replacement |
 //! | [`run`] | the loop: sources, signals (SIGTERM, SIGHUP), sd_notify, outputs |
 //! | [`transmit`] | SHIMMY_01 on the bus, only when the configuration enables it |
 //! | [`mqtt`] | the optional outgoing MQTT client to a fleet backend |
@@ -19,10 +20,12 @@
 //! | [`tls`] | MQTT's TLS client configuration (CA, client certificate) and its errors explained |
 //!
 //! What it is not: a network service. shimmyd opens no listening socket; its only network use
-//! is the outgoing MQTT connection, when `[mqtt] enabled = true`.
+//! is the outgoing MQTT connection, when `[mqtt] enabled = true`. The workshop tells it that the
+//! joints were replaced with a file in its state directory, not over the network.
 
 pub mod config;
 pub mod counters;
+pub mod joints;
 pub mod mqtt;
 pub mod outbox;
 pub mod run;

@@ -18,6 +18,15 @@
 //! after the next event.
 //! systemd: `READY=1` once the sources are open, `WATCHDOG=1` every second from the loop (so a
 //! hung loop is restarted), `STOPPING=1` on the way out; all no-ops outside systemd.
+//! Joint replacement: the workshop's marker `<state_dir>/joints_replaced` ([`super::joints`]) is
+//! looked for at start, after every finished braking event and every [`MARKER_PERIOD`] (one
+//! `stat(2)` each, never per frame). A marker is journaled (`joints_replaced`, with the estimate
+//! before it), the alerts the old joints raised are cleared (reason `joints_replaced`), the
+//! stage resets its estimate and collects the next `vehicle.baseline_events` used events as
+//! the new baseline (the estimate records say so meanwhile; a `baseline` record when it is
+//! complete); the marker is removed once the state recording the replacement is saved, and a
+//! marker already recorded there is only removed. A bad marker is logged and renamed to
+//! `joints_replaced.rejected`.
 //!
 //! What it is not: a network service (no listener), or the place where events are detected.
 
@@ -32,7 +41,9 @@ use serde_json::json;
 
 use super::config::Config;
 use super::counters::Counters;
-use super::state::{self, State};
+use super::joints::{self, MarkerId, Seen};
+use super::stage::DaemonStage;
+use super::state::{self, Replacement, State};
 use crate::dbc::Database;
 use crate::journal::{Journal, Setup, Tolerance};
 use crate::monitor::{EventStage, EventSummary, Sample};
@@ -57,7 +68,13 @@ pub struct Options {
 }
 
 /// Builds the event stage for a configuration (the observer adapter, or [`crate::monitor::NoObserver`]).
+/// [`run`] takes any factory of a [`DaemonStage`]: this one's stages cannot take a joint
+/// replacement; shimmyd's ([`super::stage::for_daemon`]) can.
 pub type StageFactory = dyn Fn(&Config) -> anyhow::Result<Box<dyn EventStage>>;
+
+/// Longest time between two looks for the joint-replacement marker while running (besides the
+/// look after every braking event).
+pub const MARKER_PERIOD: Duration = Duration::from_secs(2);
 
 /// Recorded-timing replay: once a frame is due, every frame due within this much after it is
 /// handed over at once (at most this early), so the loop sleeps about once per slice.
@@ -331,7 +348,7 @@ struct Daemon {
     state_dir: PathBuf,
     journal: Journal,
     state: State,
-    stage: Box<dyn EventStage>,
+    stage: Box<dyn DaemonStage>,
     mapper: Mapper,
     steer_msg: Option<usize>,
     history: SteerHistory,
@@ -340,6 +357,9 @@ struct Daemon {
     mqtt: Option<super::mqtt::Publisher>,
     /// The journal's writability when last looked at ([`Daemon::journal_health`]).
     journal_writable: bool,
+    /// The last problem with the joint-replacement marker that was logged (each is logged
+    /// once, not at every look).
+    marker_problem: Option<String>,
 }
 
 impl Daemon {
@@ -387,13 +407,19 @@ impl Daemon {
             "event": &e,
             "trace": trace,
         }))?;
-        if let Some(est) = &est {
+        // The event completed a baseline collection: the estimate after it is conditioned on it.
+        let completed = self.stage.take_completed_baseline();
+        if let Some(done) = &completed {
             self.journal.append(&json!({
-                "type": "estimate",
+                "type": "baseline",
+                "source": "joints_replaced",
                 "t": e.t_end,
                 "odometer_km": e.odometer_km,
-                "estimate": est,
+                "baseline": done,
             }))?;
+        }
+        if let Some(est) = &est {
+            self.journal_estimate(Some(e.t_end), e.odometer_km, est)?;
         }
         // The event first, then the alerts it raised or cleared.
         log(format_args!(
@@ -405,6 +431,15 @@ impl Daemon {
                 .map_or("n/a".to_string(), |a| format!("{a:.3} deg")),
             if e.used { "used" } else { "not used" }
         ));
+        if let Some(done) = &completed {
+            log(format_args!(
+                "baseline after the joint replacement complete: {} event(s) at {} mm (angle \
+                 estimator took {}, torque {}); estimating from now on",
+                done.events, done.clearance_mm, done.used.angle_events, done.used.torque_events
+            ));
+        } else if let Some(c) = self.stage.baseline_collection() {
+            log(c.text());
+        }
         for t in &transitions {
             let (what, a) = t.parts();
             log(format_args!(
@@ -431,7 +466,222 @@ impl Daemon {
                 "state: {e:#}; kept in memory, saved again after the next event"
             ));
         }
+        self.check_marker()
+    }
+
+    /// An `estimate` record; while a baseline is being collected after a joint replacement it
+    /// says so (`baseline_collection`), the estimate itself then having no event.
+    fn journal_estimate(
+        &mut self,
+        t: Option<f64>,
+        odometer_km: f64,
+        est: &crate::monitor::Estimate,
+    ) -> anyhow::Result<()> {
+        let mut rec = json!({
+            "type": "estimate",
+            "t": t,
+            "odometer_km": odometer_km,
+            "estimate": est,
+        });
+        if let Some(c) = self.stage.baseline_collection() {
+            rec["baseline_collection"] = json!({
+                "collected": c.collected,
+                "events": c.events,
+                "clearance_mm": c.clearance_mm,
+                "text": c.text(),
+            });
+        }
+        self.journal.append(&rec)?;
         Ok(())
+    }
+
+    /// Logs a marker problem once (until another one, or none, is seen).
+    fn marker_problem(&mut self, msg: String) {
+        if self.marker_problem.as_deref() != Some(msg.as_str()) {
+            log(&msg);
+            self.marker_problem = Some(msg);
+        }
+    }
+
+    /// Looks for the joint-replacement marker ([`joints::look`]) and acts on what it finds.
+    fn check_marker(&mut self) -> anyhow::Result<()> {
+        match joints::look(&self.state_dir) {
+            Seen::Nothing | Seen::Settling => {
+                self.marker_problem = None;
+                Ok(())
+            }
+            Seen::Unreadable(e) => {
+                self.marker_problem(format!("joints_replaced: {e}"));
+                Ok(())
+            }
+            Seen::Bad { reason } => self.reject_marker(&reason),
+            Seen::Marker { id, .. }
+                if self.state.replacement.as_ref().map(|r| &r.marker) == Some(&id) =>
+            {
+                // Handled already; the daemon stopped (or the state could not be saved) before
+                // the marker was removed. The state recording it is saved first.
+                self.settle_marker(&id, "already handled; ");
+                Ok(())
+            }
+            Seen::Marker { id, clearance_mm } => self.joints_replaced(id, clearance_mm),
+        }
+    }
+
+    /// A marker that cannot be taken: an error in the log and the journal, the file renamed.
+    fn reject_marker(&mut self, reason: &str) -> anyhow::Result<()> {
+        let p = joints::path(&self.state_dir);
+        let renamed = joints::reject(&self.state_dir);
+        let msg = format!(
+            "error: joints_replaced: {} rejected: {reason}; nothing was reset{}",
+            p.display(),
+            match &renamed {
+                Ok(to) => format!(
+                    "; renamed to {} (write a new marker: `shimmyd --joints-replaced [MM]`)",
+                    to.display()
+                ),
+                Err(e) => format!("; {e:#}"),
+            }
+        );
+        self.marker_problem(msg);
+        if renamed.is_ok() {
+            self.marker_problem = None;
+            self.journal.append(&json!({
+                "type": "joints_replaced_rejected",
+                "marker": p.display().to_string(),
+                "reason": reason,
+                "renamed_to": renamed.as_ref().ok().map(|p| p.display().to_string()),
+            }))?;
+            self.journal.sync()?;
+        }
+        Ok(())
+    }
+
+    /// The joints were replaced (marker `id`, new clearance `clearance_mm` or the configured
+    /// one): journal it, clear the old joints' alerts, reset the estimate and start the
+    /// baseline collection, save the state, then remove the marker.
+    fn joints_replaced(&mut self, id: MarkerId, clearance_mm: Option<f64>) -> anyhow::Result<()> {
+        let clearance = clearance_mm.unwrap_or(self.cfg.vehicle.baseline_clearance_mm);
+        let events = self.cfg.vehicle.baseline_events;
+        let t = self.mapper.now_ns().map(|t| t as f64 * 1e-9);
+        let before = self.state.estimate.clone();
+        let collection = self.stage.joints_replaced(clearance, events);
+        let wall = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64());
+        let cleared = self.clear_alerts(t);
+        let marker = joints::path(&self.state_dir);
+        match &collection {
+            Ok(()) => log(format_args!(
+                "joints replaced ({}): new joints at {clearance} mm; clearance estimate reset \
+                 (it was {}), {} alert(s) cleared; the next {events} used braking event(s) \
+                 become the vehicle's baseline",
+                marker.display(),
+                estimate_words(before.as_ref()),
+                cleared.len()
+            )),
+            Err(e) => log(format_args!(
+                "joints replaced ({}): {} alert(s) cleared; no baseline is collected: {e:#}",
+                marker.display(),
+                cleared.len()
+            )),
+        }
+        self.journal.append(&json!({
+            "type": "joints_replaced",
+            "t": t,
+            "wall_unix_s": wall,
+            "odometer_km": self.state.odometer_km,
+            "clearance_mm": clearance,
+            "clearance_from": if clearance_mm.is_some() { "marker" } else { "vehicle.baseline_clearance_mm" },
+            "baseline_events": events,
+            "estimate_before": before,
+            "alerts_cleared": cleared.iter().map(|a| a.id).collect::<Vec<_>>(),
+            "baseline": match &collection {
+                Ok(()) => "collecting".to_string(),
+                Err(e) => format!("not collected: {e:#}"),
+            },
+            "marker": {
+                "path": marker.display().to_string(),
+                "mtime_unix_s": id.mtime_unix_s(),
+                "content": &id.content,
+            },
+        }))?;
+        for a in &cleared {
+            log(format_args!(
+                "alert cleared: #{} {}: joints replaced",
+                a.id,
+                a.kind.as_str()
+            ));
+            self.journal.append(&json!({
+                "type": "alert",
+                "transition": "cleared",
+                "reason": "joints_replaced",
+                "alert": a,
+            }))?;
+        }
+        // The estimate after the reset: no event yet, so no clearance is claimed.
+        self.state.estimate = self.stage.estimate();
+        if let Some(est) = self.state.estimate.clone() {
+            self.journal_estimate(t, self.state.odometer_km, &est)?;
+        }
+        self.state.replacement = Some(Replacement {
+            marker: id.clone(),
+            t,
+            wall_unix_s: wall,
+            odometer_km: self.state.odometer_km,
+            clearance_mm: clearance,
+            baseline_events: events,
+            baseline_logs: self.cfg.vehicle.baseline_logs.clone(),
+            baseline_clearance_mm: self.cfg.vehicle.baseline_clearance_mm,
+        });
+        self.journal.sync()?;
+        self.journal_health();
+        if let Some(m) = &self.mqtt {
+            m.journal_durable(self.journal.durable_seq());
+        }
+        self.settle_marker(&id, "");
+        Ok(())
+    }
+
+    /// Saves the state (which records the replacement of marker `id`), then removes the
+    /// marker; when the state cannot be saved the marker stays, to be tried again at the next
+    /// look (or seen again at the next start).
+    fn settle_marker(&mut self, id: &MarkerId, what: &str) {
+        if let Err(e) = self.save_state() {
+            self.marker_problem(format!(
+                "joints_replaced: {what}state not saved ({e:#}); the marker is removed once it is"
+            ));
+            return;
+        }
+        match joints::remove(&self.state_dir, id) {
+            Ok(true) => {
+                self.marker_problem = None;
+                log(format_args!(
+                    "joints_replaced: {what}state saved, marker {} removed",
+                    joints::path(&self.state_dir).display()
+                ));
+            }
+            Ok(false) => self.marker_problem = None,
+            Err(e) => self.marker_problem(format!("joints_replaced: {e:#}")),
+        }
+    }
+
+    /// Clears the standing alerts, which the old joints raised, through the alert book: each
+    /// leaves the open alerts with a `cleared` transition; the shimmy window forgets the old
+    /// joints' events. Returns the cleared alerts.
+    fn clear_alerts(&mut self, t: Option<f64>) -> Vec<crate::alerts::Alert> {
+        let book = &mut self.state.alerts;
+        book.shimmy_window.clear();
+        let mut cleared: Vec<crate::alerts::Alert> = book.open.drain(..).collect();
+        for a in &mut cleared {
+            if let Some(t) = t {
+                a.t_updated = t;
+            }
+            a.summary = format!(
+                "cleared: the steering joints were replaced (workshop marker); before: {}",
+                a.summary
+            );
+        }
+        cleared
     }
 
     /// Logs the journal's changes between writing and refusing to write, and journals an
@@ -499,6 +749,29 @@ impl Daemon {
     }
 }
 
+/// An estimate in words for the log.
+fn estimate_words(est: Option<&crate::monitor::Estimate>) -> String {
+    match est {
+        None => "no estimate".into(),
+        Some(e) if e.events_used == 0 => "no estimate yet".into(),
+        Some(e) => {
+            let what = match (e.clearance_mm, e.below_mm) {
+                (Some(c), _) => format!("{c:.3} mm"),
+                (None, Some(b)) => format!("below {b:.3} mm"),
+                _ => "undecided".into(),
+            };
+            match e.p_above {
+                Some(p) => format!(
+                    "{what}, P(above the alert threshold) {:.0} %, over {} event(s)",
+                    p * 100.0,
+                    e.events_used
+                ),
+                None => format!("{what} over {} event(s)", e.events_used),
+            }
+        }
+    }
+}
+
 /// Seconds of traffic looked at to identify the car when the configuration names none.
 pub const IDENTIFY_SECONDS: f64 = 10.0;
 /// Most frames kept while identifying a live bus (they are processed afterwards).
@@ -553,8 +826,14 @@ fn identify_car(cfg: &Config, replay: &[PathBuf]) -> anyhow::Result<(PathBuf, Op
     }
 }
 
-/// Runs the daemon until the input ends (replay) or SIGTERM/SIGINT.
-pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
+/// Runs the daemon until the input ends (replay) or SIGTERM/SIGINT, with the event stage
+/// `make_stage` builds for the configuration (shimmyd: [`super::stage::for_daemon`]; a
+/// [`StageFactory`]'s stage runs too, without joint replacements).
+pub fn run<F, S>(opts: Options, make_stage: &F) -> anyhow::Result<()>
+where
+    F: Fn(&Config) -> anyhow::Result<Box<S>> + ?Sized,
+    S: DaemonStage + ?Sized,
+{
     let mut cfg = Config::load_with_profile(&opts.config, opts.profile.as_deref())?;
     cfg.print_warnings();
     let replay = if opts.replay.is_empty() {
@@ -664,10 +943,18 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
     signal_hook::flag::register(signal_hook::consts::SIGHUP, hup.clone())
         .context("cannot install SIGHUP handler")?;
 
-    let mut stage = make_stage(&cfg)?;
+    let mut stage = make_stage(&cfg)?.into_daemon_stage();
     log(format_args!("event stage: {}", stage.describe()));
+    // A joint replacement is newer than the configured baseline logs, unless these changed
+    // since it was marked.
+    let given_is_newer = st.replacement.as_ref().is_some_and(|r| {
+        r.configured_baseline_is_newer(
+            &cfg.vehicle.baseline_logs,
+            cfg.vehicle.baseline_clearance_mm,
+        )
+    });
     if let Some(saved) = &st.stage {
-        match stage.restore(saved) {
+        match stage.restore_with(saved, given_is_newer) {
             Ok(Some(msg)) => log(msg),
             Ok(None) => {}
             // A posterior that cannot be restored is reported, and estimation starts afresh;
@@ -748,6 +1035,7 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
         events: 0,
         mqtt,
         journal_writable: true,
+        marker_problem: None,
     };
     d.journal_health();
     d.journal.append(&json!({
@@ -768,12 +1056,14 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
         d.cfg.outputs.journal_dir.display(),
         d.state_dir.display()
     ));
+    d.check_marker()?;
 
     let mut last_counters = Counters::default();
     let mut last_rejections = None;
     let mut last_log = Instant::now();
     let mut last_watchdog = Instant::now();
     let mut last_tx = Instant::now();
+    let mut last_marker = Instant::now();
     let mut frames_since_check = 0u32;
     let result = loop {
         if term.load(Ordering::Relaxed) {
@@ -805,6 +1095,12 @@ pub fn run(opts: Options, make_stage: &StageFactory) -> anyhow::Result<()> {
             break Err(e);
         }
         d.journal_health();
+        if last_marker.elapsed() >= MARKER_PERIOD {
+            last_marker = Instant::now();
+            if let Err(e) = d.check_marker() {
+                break Err(e);
+            }
+        }
         if last_watchdog.elapsed() >= Duration::from_secs(1) {
             let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
             last_watchdog = Instant::now();

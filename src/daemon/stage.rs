@@ -5,15 +5,171 @@
 //! live torsion-bar torque feed the torque's estimator, which the estimate then comes from.
 //! A profile's own tables carry the profile's correction (`correction`, src/observer/
 //! correction.rs), as every other path that loads them does.
+//!
+//! [`DaemonStage`] is what the daemon asks of its stage beyond [`EventStage`]: being told that
+//! the joints were replaced (reset, then collect a new baseline), and restoring with the
+//! precedence between a configured baseline and one a replacement made. [`ObserverStage`] does
+//! all of it; any other [`EventStage`] (a test double) runs as a [`DaemonStage`] that cannot
+//! take a joint replacement.
+//!
+//! What it is not: the marker file or the journal records of a replacement ([`super::joints`],
+//! [`super::run`]).
 
 use anyhow::Context;
+use serde::Serialize;
 
 use super::config::Config;
-use crate::monitor::EventStage;
+use crate::monitor::{Estimate, EventStage, EventSummary, RejectionSummary, Sample};
 use crate::observer::table::ResponseTable;
+use crate::pipeline::observer_stage::BaselineUse;
 use crate::pipeline::ObserverStage;
 
+/// A baseline collection in progress after a joint replacement.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Collection {
+    /// Used braking events collected so far.
+    pub collected: u32,
+    /// How many make the baseline.
+    pub events: u32,
+    /// The new joints' clearance (mm).
+    pub clearance_mm: f64,
+}
+
+impl Collection {
+    /// What the estimate is meanwhile, in words.
+    pub fn text(&self) -> String {
+        format!(
+            "collecting a baseline after a joint replacement: {} of {} events (at {} mm); no \
+             clearance estimate until it is complete",
+            self.collected, self.events, self.clearance_mm
+        )
+    }
+}
+
+/// A baseline just completed from a joint replacement's collection.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Completed {
+    /// Events collected.
+    pub events: u32,
+    pub clearance_mm: f64,
+    /// How many of them each estimator took.
+    #[serde(flatten)]
+    pub used: BaselineUse,
+}
+
+/// What shimmyd asks of its event stage beyond [`EventStage`]. The provided methods are those
+/// of a stage that estimates nothing a joint replacement could reset.
+pub trait DaemonStage: EventStage {
+    /// The joints were just replaced (new clearance `clearance_mm`): forget what was learnt
+    /// from the old ones and collect the next `events` used braking events as the new baseline
+    /// ([`ObserverStage::joints_replaced`]). An error says why it cannot.
+    fn joints_replaced(&mut self, _clearance_mm: f64, _events: u32) -> anyhow::Result<()> {
+        anyhow::bail!("this event stage estimates no clearance: nothing to reset or collect")
+    }
+    /// The baseline collection in progress, if any.
+    fn baseline_collection(&self) -> Option<Collection> {
+        None
+    }
+    /// A collection completed since the last call (once per completion).
+    fn take_completed_baseline(&mut self) -> Option<Completed> {
+        None
+    }
+    /// [`EventStage::restore`], with a baseline given at start newer than a replacement's in
+    /// the saved state when `given_is_newer` ([`ObserverStage::restore_with`]).
+    fn restore_with(
+        &mut self,
+        saved: &serde_json::Value,
+        _given_is_newer: bool,
+    ) -> anyhow::Result<Option<String>> {
+        self.restore(saved)
+    }
+    /// The stage as the daemon keeps it.
+    fn into_daemon_stage(self: Box<Self>) -> Box<dyn DaemonStage>;
+}
+
+impl DaemonStage for ObserverStage {
+    fn joints_replaced(&mut self, clearance_mm: f64, events: u32) -> anyhow::Result<()> {
+        ObserverStage::joints_replaced(self, clearance_mm, events)
+    }
+    fn baseline_collection(&self) -> Option<Collection> {
+        self.collecting().map(|c| Collection {
+            collected: c.collected(),
+            events: c.target,
+            clearance_mm: c.clearance_mm,
+        })
+    }
+    fn take_completed_baseline(&mut self) -> Option<Completed> {
+        let used = ObserverStage::take_completed_baseline(self)?;
+        let b = self.baseline()?;
+        Some(Completed {
+            events: u32::try_from(b.evidence.len()).unwrap_or(u32::MAX),
+            clearance_mm: b.clearance_mm,
+            used,
+        })
+    }
+    fn restore_with(
+        &mut self,
+        saved: &serde_json::Value,
+        given_is_newer: bool,
+    ) -> anyhow::Result<Option<String>> {
+        ObserverStage::restore_with(self, saved, given_is_newer)
+    }
+    fn into_daemon_stage(self: Box<Self>) -> Box<dyn DaemonStage> {
+        self
+    }
+}
+
+/// Any [`EventStage`] (a factory's `Box<dyn EventStage>`) runs as a stage that cannot take a
+/// joint replacement.
+impl DaemonStage for dyn EventStage {
+    fn into_daemon_stage(self: Box<Self>) -> Box<dyn DaemonStage> {
+        Box::new(Plain(self))
+    }
+}
+
+/// An [`EventStage`] that is only that.
+struct Plain(Box<dyn EventStage>);
+
+impl EventStage for Plain {
+    fn describe(&self) -> String {
+        self.0.describe()
+    }
+    fn push(&mut self, s: &Sample) -> Option<EventSummary> {
+        self.0.push(s)
+    }
+    fn finish(&mut self) -> Option<EventSummary> {
+        self.0.finish()
+    }
+    fn estimate(&self) -> Option<Estimate> {
+        self.0.estimate()
+    }
+    fn odometer_km(&mut self, km: f64) {
+        self.0.odometer_km(km)
+    }
+    fn save(&self) -> Option<serde_json::Value> {
+        self.0.save()
+    }
+    fn rejections(&self) -> Option<RejectionSummary> {
+        self.0.rejections()
+    }
+    fn restore(&mut self, saved: &serde_json::Value) -> anyhow::Result<Option<String>> {
+        self.0.restore(saved)
+    }
+}
+
+impl DaemonStage for Plain {
+    fn into_daemon_stage(self: Box<Self>) -> Box<dyn DaemonStage> {
+        self
+    }
+}
+
+/// [`for_daemon`] as a plain [`EventStage`] (for callers that need nothing more).
 pub fn for_config(cfg: &Config) -> anyhow::Result<Box<dyn EventStage>> {
+    Ok(for_daemon(cfg)?)
+}
+
+/// The clearance observer for `cfg`, as shimmyd runs it.
+pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
     let table = match &cfg.vehicle.table {
         Some(p) => {
             let t = ResponseTable::load(p)

@@ -1,5 +1,6 @@
 //! shimmyd's persisted state, what survives a restart: clearance estimate, recent event history,
-//! odometer and open alerts, in `<state_dir>/state.json`, written atomically.
+//! odometer, open alerts and the last joint replacement the workshop marked ([`Replacement`]),
+//! in `<state_dir>/state.json`, written atomically.
 //!
 //! Atomic write: the new content goes to `state.json.tmp`, which is fsynced, renamed over
 //! `state.json`, and the directory is fsynced; a crash at any instant leaves either the old or
@@ -42,6 +43,42 @@ pub struct State {
     /// The journal's health when the state was saved ([`crate::journal::Health`]): whether it
     /// writes, its backlog and drops during a disk outage.
     pub journal: Option<crate::journal::Health>,
+    /// The last joint replacement the workshop marked (`<state_dir>/joints_replaced`,
+    /// [`super::joints`]). The baseline collection it started, and the baseline it made, are
+    /// the event stage's (`stage`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub replacement: Option<Replacement>,
+}
+
+/// A joint replacement the daemon was told of with the marker file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Replacement {
+    /// The marker file handled: the same file seen again (the daemon stopped after saving this
+    /// state but before removing it) is only removed.
+    pub marker: super::joints::MarkerId,
+    /// Log time (the input's clock, s) when the daemon took it; `None` before the first frame.
+    pub t: Option<f64>,
+    /// Wall clock when the daemon took it (s since the Unix epoch; information only).
+    pub wall_unix_s: f64,
+    pub odometer_km: f64,
+    /// The new joints' clearance (mm): the marker's, else `vehicle.baseline_clearance_mm`.
+    pub clearance_mm: f64,
+    /// Used braking events asked for the new baseline (`vehicle.baseline_events` then).
+    pub baseline_events: u32,
+    /// `vehicle.baseline_logs` and `vehicle.baseline_clearance_mm` then: when the logs
+    /// configured at a later start differ, they are newer than this replacement and their
+    /// baseline is used.
+    pub baseline_logs: Vec<PathBuf>,
+    pub baseline_clearance_mm: f64,
+}
+
+impl Replacement {
+    /// Whether the baseline configured now (`logs` at `clearance_mm`) was configured after this
+    /// replacement: set, and not what was configured when it was marked.
+    pub fn configured_baseline_is_newer(&self, logs: &[PathBuf], clearance_mm: f64) -> bool {
+        !logs.is_empty()
+            && (logs != self.baseline_logs.as_slice() || clearance_mm != self.baseline_clearance_mm)
+    }
 }
 
 impl State {

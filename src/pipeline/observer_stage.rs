@@ -17,6 +17,16 @@
 //! named in the log line at the next start (their weight is already small after the wear
 //! model's diffusion over the distance since).
 //!
+//! A joint replacement ([`ObserverStage::joints_replaced`]): the evidence and the baseline,
+//! which describe the old joints, are forgotten (the sensors' noise floor is kept), and the
+//! next used events are collected, feeding nothing else, until there are as many as asked;
+//! they then become the vehicle's baseline at the new joints' clearance
+//! ([`ObserverStage::set_baseline`]) and estimation goes on from there. The collection and the
+//! baseline it made are saved ([`Saved::collecting`], [`Saved::from_replacement`]), so a restart
+//! in the middle resumes it, and such a baseline takes the place of one given at start
+//! (`vehicle.baseline_logs`) unless the caller says the given one is newer
+//! ([`ObserverStage::restore_with`]).
+//!
 //! What it is not: a detector, an estimator or an alert rule. Detection and the amplitude
 //! estimate (MODEL.md §11) are the observer's; the alert rules are [`crate::alerts`]'.
 
@@ -99,6 +109,31 @@ pub struct Saved {
     pub baseline: Option<Baseline>,
     /// The steering sensors' noise measured at standstill so far (the stops kept).
     pub noise_floor: crate::observer::noise_floor::NoiseFloor,
+    /// A baseline being collected after a joint replacement (absent otherwise).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub collecting: Option<Collecting>,
+    /// `baseline` (or `collecting`) comes from a joint replacement the stage was told of while
+    /// running ([`ObserverStage::joints_replaced`]), not from a baseline given at start.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub from_replacement: bool,
+}
+
+/// A baseline being collected after a joint replacement: the next `target` used events, driven
+/// at `clearance_mm` (the new joints'), of which `evidence` holds those seen so far.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Collecting {
+    /// The new joints' clearance (mm).
+    pub clearance_mm: f64,
+    /// How many used events make the baseline (≥ 1).
+    pub target: u32,
+    pub evidence: Vec<Evidence>,
+}
+
+impl Collecting {
+    /// Used events collected so far.
+    pub fn collected(&self) -> u32 {
+        u32::try_from(self.evidence.len()).unwrap_or(u32::MAX)
+    }
 }
 
 /// Events of the vehicle at a known clearance (its first ones after the joints were
@@ -130,6 +165,12 @@ pub struct ObserverStage {
     evidence_dropped: u64,
     odometer_km: f64,
     baseline: Option<Baseline>,
+    /// The baseline being collected after a joint replacement.
+    collecting: Option<Collecting>,
+    /// `baseline` / `collecting` come from a joint replacement ([`Saved::from_replacement`]).
+    from_replacement: bool,
+    /// A collection completed since [`ObserverStage::take_completed_baseline`] last looked.
+    completed: Option<BaselineUse>,
 }
 
 impl ObserverStage {
@@ -151,6 +192,9 @@ impl ObserverStage {
             evidence_dropped: 0,
             odometer_km: 0.0,
             baseline: None,
+            collecting: None,
+            from_replacement: false,
+            completed: None,
         })
     }
 
@@ -167,6 +211,196 @@ impl ObserverStage {
         let used = self.apply_baseline(&baseline);
         self.baseline = Some(baseline);
         used
+    }
+
+    /// The baseline in use, when there is one.
+    pub fn baseline(&self) -> Option<&Baseline> {
+        self.baseline.as_ref()
+    }
+
+    /// The joints were just replaced; the new ones have `clearance_mm`. Forgets what the
+    /// estimators learnt from the old joints (every used event's evidence, and the baseline),
+    /// keeps the sensors' noise floor, and takes the next `events` used events as the
+    /// vehicle's new baseline at that clearance: until there are that many they feed nothing
+    /// but the collection (the estimate then has no event: no clearance is claimed), then
+    /// [`Self::set_baseline`] is called with them and estimation goes on as usual. A
+    /// collection in progress starts over. Errors, changing nothing, without a response table
+    /// (nothing to reset or condition), on a clearance that is not above 0 or on `events` = 0.
+    pub fn joints_replaced(&mut self, clearance_mm: f64, events: u32) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            self.has_table,
+            "no response table (vehicle.table): there is no clearance estimate to reset and no \
+             baseline to collect"
+        );
+        anyhow::ensure!(
+            clearance_mm.is_finite() && clearance_mm > 0.0,
+            "the new joints' clearance must be above 0 mm (got {clearance_mm})"
+        );
+        anyhow::ensure!(events >= 1, "a baseline needs at least 1 event");
+        self.obs.reset_estimator()?;
+        self.evidence.clear();
+        self.evidence_dropped = 0;
+        self.baseline = None;
+        self.completed = None;
+        self.collecting = Some(Collecting {
+            clearance_mm,
+            target: events,
+            evidence: Vec::with_capacity((events as usize).min(MAX_EVIDENCE)),
+        });
+        self.from_replacement = true;
+        Ok(())
+    }
+
+    /// The baseline collection in progress after a joint replacement, if any.
+    pub fn collecting(&self) -> Option<&Collecting> {
+        self.collecting.as_ref()
+    }
+
+    /// Whether the baseline (or the collection) comes from a joint replacement.
+    pub fn baseline_from_replacement(&self) -> bool {
+        self.from_replacement
+    }
+
+    /// How many events each estimator took from a baseline whose collection completed since
+    /// the last call (once per completion).
+    pub fn take_completed_baseline(&mut self) -> Option<BaselineUse> {
+        self.completed.take()
+    }
+
+    /// One used event into the collection; the last one turns it into the baseline.
+    fn collect(&mut self, ev: Evidence) {
+        let Some(c) = self.collecting.as_mut() else {
+            return;
+        };
+        c.evidence.push(ev);
+        if c.evidence.len() < c.target as usize {
+            return;
+        }
+        if let Some(c) = self.collecting.take() {
+            let used = self.set_baseline(Baseline {
+                clearance_mm: c.clearance_mm,
+                evidence: c.evidence,
+            });
+            self.completed = Some(used);
+        }
+    }
+
+    /// Resumes from what [`EventStage::save`] returned in an earlier run; returns a line for
+    /// the log. Which baseline conditions the estimate: one given now (set before this call,
+    /// e.g. from `vehicle.baseline_logs`) takes the place of the saved one, except that a joint
+    /// replacement's baseline or collection in the saved state ([`Saved::from_replacement`])
+    /// is newer than a given one and takes its place, unless `given_is_newer` (the caller
+    /// knows the given baseline changed since that replacement).
+    pub fn restore_with(
+        &mut self,
+        saved: &serde_json::Value,
+        given_is_newer: bool,
+    ) -> anyhow::Result<Option<String>> {
+        if !self.has_table {
+            return Ok(Some(
+                "the saved clearance posterior is not restored: no response table (vehicle.table)"
+                    .into(),
+            ));
+        }
+        let saved: Saved = serde_json::from_value(saved.clone())
+            .context("the state's saved posterior does not parse")?;
+        self.obs.reset_estimator()?;
+        self.obs.set_noise_floor(saved.noise_floor.clone());
+        self.evidence.clear();
+        self.evidence_dropped = saved.evidence_dropped;
+        let mut notes = Vec::new();
+        let replacement = saved.from_replacement || saved.collecting.is_some();
+        let given = self.baseline.is_some();
+        if replacement && !(given && given_is_newer) {
+            if given {
+                notes.push(
+                    "the baseline of the joint replacement takes the place of the one given at \
+                     start (vehicle.baseline_logs): the replacement is newer"
+                        .to_string(),
+                );
+            }
+            self.baseline = saved.baseline.clone();
+            self.collecting = saved.collecting.clone();
+            self.from_replacement = true;
+        } else {
+            if replacement {
+                notes.push(
+                    "the baseline given at start (vehicle.baseline_logs) is newer than the joint \
+                     replacement's, which is dropped"
+                        .to_string(),
+                );
+            }
+            // A baseline given now takes the place of the saved one.
+            if self.baseline.is_none() {
+                self.baseline = saved.baseline.clone();
+            }
+            self.collecting = None;
+            self.from_replacement = false;
+        }
+        if let Some(c) = &self.collecting {
+            if !(c.clearance_mm.is_finite() && c.clearance_mm > 0.0 && c.target >= 1) {
+                notes.push(format!(
+                    "the saved baseline collection (clearance {} mm, {} event(s)) is not \
+                     valid and is dropped",
+                    c.clearance_mm, c.target
+                ));
+                self.collecting = None;
+            } else if c.evidence.len() >= c.target as usize {
+                // Complete already (a state written by hand): it is the baseline.
+                let c = self.collecting.take().expect("checked above");
+                self.baseline = Some(Baseline {
+                    clearance_mm: c.clearance_mm,
+                    evidence: c.evidence,
+                });
+            }
+        }
+        if let Some(b) = self.baseline.clone() {
+            self.apply_baseline(&b);
+        }
+        for ev in &saved.evidence {
+            let angle_ok = ev.rms_deg.is_finite() && ev.peak_deg.is_finite();
+            let torque_ok = ev
+                .torque_nm
+                .is_some_and(|t| t.rms.is_finite() && t.peak.is_finite());
+            if (angle_ok || torque_ok)
+                && [ev.v0_kmh, ev.decel_g, ev.odometer_m]
+                    .iter()
+                    .all(|x| x.is_finite())
+            {
+                self.apply(ev);
+            } else {
+                self.evidence_dropped += 1;
+            }
+        }
+        let mut msg = format!(
+            "clearance posterior restored from {} used event(s)",
+            self.evidence.len()
+        );
+        if self.evidence_dropped > 0 {
+            msg += &format!(
+                " ({} older used event(s) not kept in the state and not replayed)",
+                self.evidence_dropped
+            );
+        }
+        if let Some(c) = &self.collecting {
+            msg += &format!(
+                "; collecting a baseline after a joint replacement: {} of {} events at {} mm",
+                c.collected(),
+                c.target,
+                c.clearance_mm
+            );
+        } else if let (true, Some(b)) = (self.from_replacement, &self.baseline) {
+            msg += &format!(
+                "; baseline of the joint replacement: {} event(s) at {} mm",
+                b.evidence.len(),
+                b.clearance_mm
+            );
+        }
+        for n in notes {
+            msg += "; ";
+            msg += &n;
+        }
+        Ok(Some(msg))
     }
 
     fn apply_baseline(&mut self, b: &Baseline) -> BaselineUse {
@@ -267,7 +501,11 @@ impl ObserverStage {
                 odometer_m: self.odometer_km * 1000.0 - self.obs.distance_since_last_event_m(),
                 torque_nm,
             };
-            self.apply(&ev);
+            if self.collecting.is_some() {
+                self.collect(ev);
+            } else {
+                self.apply(&ev);
+            }
         }
         self.obs.last_event().map(summary)
     }
@@ -359,56 +597,16 @@ impl EventStage for ObserverStage {
             evidence_dropped: self.evidence_dropped,
             baseline: self.baseline.clone(),
             noise_floor: self.obs.noise_floor().clone(),
+            collecting: self.collecting.clone(),
+            from_replacement: self.from_replacement,
         })
         .ok()
     }
 
+    /// [`ObserverStage::restore_with`]: a joint replacement's baseline (or collection) in the
+    /// saved state is newer than a baseline given at start, and takes its place.
     fn restore(&mut self, saved: &serde_json::Value) -> anyhow::Result<Option<String>> {
-        if !self.has_table {
-            return Ok(Some(
-                "the saved clearance posterior is not restored: no response table (vehicle.table)"
-                    .into(),
-            ));
-        }
-        let saved: Saved = serde_json::from_value(saved.clone())
-            .context("the state's saved posterior does not parse")?;
-        self.obs.reset_estimator()?;
-        self.obs.set_noise_floor(saved.noise_floor.clone());
-        self.evidence.clear();
-        self.evidence_dropped = saved.evidence_dropped;
-        // A baseline given now (set before the restore) takes the place of the saved one.
-        if self.baseline.is_none() {
-            self.baseline = saved.baseline.clone();
-        }
-        if let Some(b) = self.baseline.clone() {
-            self.apply_baseline(&b);
-        }
-        for ev in &saved.evidence {
-            let angle_ok = ev.rms_deg.is_finite() && ev.peak_deg.is_finite();
-            let torque_ok = ev
-                .torque_nm
-                .is_some_and(|t| t.rms.is_finite() && t.peak.is_finite());
-            if (angle_ok || torque_ok)
-                && [ev.v0_kmh, ev.decel_g, ev.odometer_m]
-                    .iter()
-                    .all(|x| x.is_finite())
-            {
-                self.apply(ev);
-            } else {
-                self.evidence_dropped += 1;
-            }
-        }
-        let mut msg = format!(
-            "clearance posterior restored from {} used event(s)",
-            self.evidence.len()
-        );
-        if self.evidence_dropped > 0 {
-            msg += &format!(
-                " ({} older used event(s) not kept in the state and not replayed)",
-                self.evidence_dropped
-            );
-        }
-        Ok(Some(msg))
+        self.restore_with(saved, false)
     }
 
     fn estimate(&self) -> Option<Estimate> {
@@ -517,5 +715,82 @@ mod tests {
         let mut r2 = ObserverStage::new(&cfg, Some(reference_table())).unwrap();
         r2.restore(&old).unwrap();
         assert_eq!(r2.estimate().unwrap(), e_plain);
+    }
+
+    /// A joint replacement forgets the old joints' evidence and baseline, collects the next
+    /// events (feeding nothing else: no estimate meanwhile), then makes them the baseline; the
+    /// collection survives a save and restore in the middle, and its baseline is newer than
+    /// one given at start unless the caller says otherwise.
+    #[test]
+    fn a_joint_replacement_collects_a_new_baseline_across_a_restore() {
+        let cfg = ObserverConfig::default();
+        let given = Baseline {
+            clearance_mm: 0.05,
+            evidence: (0..4).map(|i| evidence(i, 0.7)).collect(),
+        };
+        let mut st = ObserverStage::new(&cfg, Some(reference_table())).unwrap();
+        st.set_baseline(given.clone());
+        for i in 0..10 {
+            st.apply(&evidence(i, 2.0));
+        }
+        assert_eq!(st.estimate().unwrap().events_used, 10);
+        st.joints_replaced(0.03, 5).unwrap();
+        assert!(st.baseline().is_none() && st.evidence().count() == 0);
+        let e = st.estimate().unwrap();
+        assert_eq!(e.events_used, 0);
+        assert!(e.clearance_mm.is_none() && e.p_above.is_none() && e.interval_mm.is_none());
+        for i in 0..3 {
+            st.collect(evidence(20 + i, 0.6));
+        }
+        assert_eq!(st.collecting().unwrap().collected(), 3);
+        assert_eq!(
+            st.estimate().unwrap().events_used,
+            0,
+            "collected events fed the estimate"
+        );
+        // Restart in the middle, with a baseline given at start (configured logs).
+        let saved = st.save().unwrap();
+        let mut r = ObserverStage::new(&cfg, Some(reference_table())).unwrap();
+        r.set_baseline(given.clone());
+        let msg = r.restore(&saved).unwrap().unwrap();
+        assert!(msg.contains("3 of 5 events"), "{msg}");
+        assert!(msg.contains("replacement is newer"), "{msg}");
+        assert!(r.baseline().is_none());
+        for i in 3..5 {
+            assert!(r.take_completed_baseline().is_none());
+            r.collect(evidence(20 + i, 0.6));
+        }
+        let used = r.take_completed_baseline().expect("complete");
+        assert_eq!(used.angle_events, 5);
+        assert!(r.collecting().is_none());
+        let b = r.baseline().unwrap();
+        assert_eq!((b.clearance_mm, b.evidence.len()), (0.03, 5));
+        // The same as a stage given those 5 events as its baseline before any event.
+        let mut direct = ObserverStage::new(&cfg, Some(reference_table())).unwrap();
+        direct.set_baseline(b.clone());
+        for i in 0..4 {
+            r.apply(&evidence(40 + i, 1.0));
+            direct.apply(&evidence(40 + i, 1.0));
+        }
+        assert_eq!(r.estimate(), direct.estimate());
+        // Saved and restored, the replacement's baseline stays; a given one said to be newer
+        // takes its place.
+        let saved = r.save().unwrap();
+        assert_eq!(saved["from_replacement"], true);
+        let mut again = ObserverStage::new(&cfg, Some(reference_table())).unwrap();
+        again.set_baseline(given.clone());
+        again.restore(&saved).unwrap();
+        assert_eq!(again.baseline().unwrap().clearance_mm, 0.03);
+        assert_eq!(again.estimate(), r.estimate());
+        let mut newer = ObserverStage::new(&cfg, Some(reference_table())).unwrap();
+        newer.set_baseline(given.clone());
+        let msg = newer.restore_with(&saved, true).unwrap().unwrap();
+        assert!(msg.contains("is newer than the joint"), "{msg}");
+        assert_eq!(newer.baseline().unwrap().clearance_mm, 0.05);
+        assert!(!newer.baseline_from_replacement());
+        // Without a table there is nothing to reset.
+        let mut none = ObserverStage::new(&cfg, None).unwrap();
+        assert!(none.joints_replaced(0.03, 5).is_err());
+        assert!(st.joints_replaced(0.0, 5).is_err() && st.joints_replaced(0.03, 0).is_err());
     }
 }

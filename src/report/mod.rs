@@ -7,7 +7,10 @@
 //! interval, the trend over distance with the 0.07 mm and 0.1 mm lines), then the evidence
 //! (steering-wheel angle around the worst braking events, their spectra, the event table), then
 //! the guidance and the data-quality counters. Plots are inline SVG ([`svg`]); there are no
-//! scripts and no external assets.
+//! scripts and no external assets. After a joint replacement journaled by shimmyd (its
+//! `joints_replaced` record) the report is about the new joints: the trend and the evidence
+//! start there (the event table still lists every event), and while the daemon collects the
+//! new baseline the verdict says so.
 //!
 //! What it is not: an estimator. It shows what the daemon recorded and never recomputes or
 //! invents an estimate.
@@ -128,6 +131,39 @@ pub struct ReportData {
     pub counters: Option<serde_json::Value>,
     pub journal_invalid_lines: u64,
     pub guidance: Vec<String>,
+    /// The last joint replacement shimmyd recorded (its journal's `joints_replaced` record, or
+    /// its state's `replacement`), when there is one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub joints_replaced: Option<serde_json::Value>,
+    /// While the daemon collects the new baseline after it: how far (`collected`, `events`,
+    /// `clearance_mm`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub baseline_collection: Option<serde_json::Value>,
+}
+
+/// `v`, said of a baseline collection after a joint replacement when no alert stands: there
+/// is no estimate to judge by yet, and why.
+fn collecting_verdict(
+    v: Verdict,
+    open: &[Alert],
+    collection: Option<&serde_json::Value>,
+) -> Verdict {
+    let Some(c) = collection.filter(|_| open.is_empty()) else {
+        return v;
+    };
+    let n = |k: &str| c[k].as_f64().map_or("?".to_string(), |x| format!("{x}"));
+    Verdict {
+        condition: "unknown".into(),
+        headline: format!(
+            "The steering joints were replaced: the monitor is collecting the car's new baseline \
+             (new joints at {} mm), {} of {} braking events. The clearance is estimated once it \
+             is complete.",
+            n("clearance_mm"),
+            n("collected"),
+            n("events")
+        ),
+        estimate: v.estimate,
+    }
 }
 
 fn verdict(open: &[Alert], est: Option<&Estimate>, events: usize, cfg: &AlertsSection) -> Verdict {
@@ -247,9 +283,24 @@ pub fn from_journal(dir: &Path, cfg: &AlertsSection) -> anyhow::Result<ReportDat
     let mut counters = None;
     let mut odometer = None;
     let mut last_est = None;
+    let mut replaced = None;
+    let mut collection = None;
+    // Events before the last joint replacement are not the present joints' evidence.
+    let mut since = 0;
     for e in &mut r {
         let e = e?;
         match e.rec.get("type").and_then(|t| t.as_str()) {
+            Some("joints_replaced") => {
+                let mut rec = e.rec.clone();
+                if let (Some(w), Some(m)) = (e.wall_ns, rec.as_object_mut()) {
+                    m.entry("wall_unix_s").or_insert(json_f64(w as f64 * 1e-9));
+                }
+                replaced = Some(rec);
+                trend.clear();
+                last_est = None;
+                collection = None;
+                since = events.len();
+            }
             Some("event") => {
                 let ev: EventSummary = serde_json::from_value(e.rec["event"].clone())
                     .with_context(|| format!("journal record {}: bad event", e.seq))?;
@@ -263,6 +314,11 @@ pub fn from_journal(dir: &Path, cfg: &AlertsSection) -> anyhow::Result<ReportDat
                 let est: Estimate = serde_json::from_value(e.rec["estimate"].clone())
                     .with_context(|| format!("journal record {}: bad estimate", e.seq))?;
                 last_est = Some(est.clone());
+                collection = e
+                    .rec
+                    .get("baseline_collection")
+                    .filter(|c| c.is_object())
+                    .cloned();
                 trend.push(TrendPoint {
                     odometer_km: e.rec["odometer_km"].as_f64().unwrap_or(0.0),
                     t: e.rec["t"].as_f64().unwrap_or(0.0),
@@ -288,18 +344,21 @@ pub fn from_journal(dir: &Path, cfg: &AlertsSection) -> anyhow::Result<ReportDat
             _ => {}
         }
     }
+    let v = verdict(&open, last_est.as_ref(), events.len() - since, cfg);
     Ok(ReportData {
         source: format!("journal {}", dir.display()),
-        verdict: verdict(&open, last_est.as_ref(), events.len(), cfg),
+        verdict: collecting_verdict(v, &open, collection.as_ref()),
         odometer_km: odometer,
         trend,
         open_alerts: open,
         alert_history,
-        worst: worst(&events, &traces),
+        worst: worst(&events[since..], &traces),
         events,
         counters,
         journal_invalid_lines: r.invalid_lines(),
         guidance: guidance_lines(cfg, odometer),
+        joints_replaced: replaced,
+        baseline_collection: collection,
     })
 }
 
@@ -323,9 +382,23 @@ pub fn from_state(dir: &Path, cfg: &AlertsSection) -> anyhow::Result<ReportData>
             estimate: e.clone(),
         })
         .collect();
+    // A baseline collection in progress is the event stage's (its saved `collecting`).
+    let collection = st
+        .stage
+        .as_ref()
+        .and_then(|s| s.get("collecting"))
+        .filter(|c| c.is_object())
+        .map(|c| {
+            serde_json::json!({
+                "collected": c["evidence"].as_array().map_or(0, |e| e.len()),
+                "events": c["target"],
+                "clearance_mm": c["clearance_mm"],
+            })
+        });
+    let v = verdict(&st.alerts.open, st.estimate.as_ref(), st.events.len(), cfg);
     Ok(ReportData {
         source: format!("state {}", dir.display()),
-        verdict: verdict(&st.alerts.open, st.estimate.as_ref(), st.events.len(), cfg),
+        verdict: collecting_verdict(v, &st.alerts.open, collection.as_ref()),
         odometer_km: Some(st.odometer_km),
         trend,
         open_alerts: st.alerts.open.clone(),
@@ -335,7 +408,17 @@ pub fn from_state(dir: &Path, cfg: &AlertsSection) -> anyhow::Result<ReportData>
         counters: None,
         journal_invalid_lines: 0,
         guidance: guidance_lines(cfg, Some(st.odometer_km)),
+        joints_replaced: st
+            .replacement
+            .as_ref()
+            .and_then(|r| serde_json::to_value(r).ok()),
+        baseline_collection: collection,
     })
+}
+
+/// A number as JSON (null when not finite).
+fn json_f64(x: f64) -> serde_json::Value {
+    serde_json::Number::from_f64(x).map_or(serde_json::Value::Null, serde_json::Value::Number)
 }
 
 fn esc(s: &str) -> String {
@@ -581,6 +664,24 @@ td.l,th.l{{text-align:left}} .small{{color:#555;font-size:13px}} .alert{{backgro
             a.updates,
             esc(&a.summary),
             esc(&a.guidance)
+        );
+    }
+    if let Some(r) = &d.joints_replaced {
+        let at = r["t"]
+            .as_f64()
+            .or(r["wall_unix_s"].as_f64())
+            .map_or("–".to_string(), when);
+        let _ = write!(
+            s,
+            r#"<div class="small"><b>Joints replaced</b> {at}, at {} km: new joints at {} mm{}. The trend and the evidence below start there; the event table lists every event.</div>"#,
+            opt(r["odometer_km"].as_f64(), 1),
+            opt(r["clearance_mm"].as_f64(), 3),
+            d.baseline_collection
+                .as_ref()
+                .map_or(String::new(), |c| format!(
+                    "; baseline being collected: {} of {} braking events",
+                    c["collected"], c["events"]
+                )),
         );
     }
     s.push_str("<h2>Trend over distance</h2>");
