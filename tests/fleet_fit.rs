@@ -169,7 +169,8 @@ fn a_fleet_at_new_joints_reveals_a_torque_read_30_percent_high() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
-        err.contains("fitted against another") && err.contains("shimmy fleet-fit"),
+        err.contains("fitted against another torque table (fingerprint 0")
+            && err.contains("shimmy fleet-fit"),
         "{err}"
     );
 }

@@ -443,10 +443,11 @@ impl Profile {
         if let Some(c) = file.of(t.sensor.signal) {
             if c.table_fingerprint != t.fingerprint {
                 bail!(
-                    "profile {}: its correction {} was fitted against another {} table                      (fingerprint {}, this table's {}); fit it again with `shimmy fleet-fit`",
+                    "profile {}: its correction {} was fitted against another {} table (fingerprint \
+                     {}, this table's {}); fit it again with `shimmy fleet-fit`",
                     self.name,
                     self.correction_path.as_deref().unwrap_or(Path::new("?")).display(),
-                    t.sensor.signal.unit(),
+                    if t.sensor.signal.is_angle() { "steering-angle" } else { "torque" },
                     c.table_fingerprint,
                     t.fingerprint
                 );
