@@ -198,6 +198,22 @@ impl AlertBook {
         self.open_index(kind).is_some()
     }
 
+    /// Clears every open alert at once, for a reason outside the rules (the joints that raised
+    /// them were replaced): each leaves the open alerts, its summary saying `reason` and what
+    /// it said before, `t_updated` set to `t` when known; the shimmy window forgets its events.
+    /// Returns the cleared alerts, for the caller to report as `cleared` transitions.
+    pub fn clear_all(&mut self, t: Option<f64>, reason: &str) -> Vec<Alert> {
+        self.shimmy_window.clear();
+        let mut cleared: Vec<Alert> = self.open.drain(..).collect();
+        for a in &mut cleared {
+            if let Some(t) = t {
+                a.t_updated = t;
+            }
+            a.summary = format!("cleared: {reason}; before: {}", a.summary);
+        }
+        cleared
+    }
+
     /// Evaluates both rules after one finished event, with the estimate after it. Returns the
     /// transitions (at most one per kind).
     pub fn on_event(
@@ -385,6 +401,26 @@ mod tests {
         let t = b.on_event(&cfg, &ev(50.0, 55.0, 0.05), None);
         assert_eq!(kinds(&t), [("cleared", Kind::Shimmy55)]);
         assert!(b.open.is_empty());
+    }
+
+    #[test]
+    fn clear_all_empties_the_book_and_its_shimmy_window_and_says_why() {
+        let cfg = AlertsSection::default();
+        let mut b = AlertBook::default();
+        b.on_event(&cfg, &ev(0.0, 55.0, 0.3), None);
+        b.on_event(&cfg, &ev(10.0, 55.0, 0.3), None);
+        assert!(b.is_open(Kind::Shimmy55));
+        let before = b.open[0].summary.clone();
+        let cleared = b.clear_all(Some(99.0), "the joints were replaced");
+        assert_eq!(cleared.len(), 1);
+        assert_eq!(cleared[0].t_updated, 99.0);
+        assert_eq!(
+            cleared[0].summary,
+            format!("cleared: the joints were replaced; before: {before}")
+        );
+        assert!(b.open.is_empty() && b.shimmy_window.is_empty());
+        // The old events are forgotten: one new event above the threshold does not raise.
+        assert!(b.on_event(&cfg, &ev(20.0, 55.0, 0.3), None).is_empty());
     }
 
     #[test]

@@ -568,7 +568,10 @@ impl Daemon {
         let wall = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0.0, |d| d.as_secs_f64());
-        let cleared = self.clear_alerts(t);
+        let cleared = self
+            .state
+            .alerts
+            .clear_all(t, "the steering joints were replaced (workshop marker)");
         let marker = joints::path(&self.state_dir);
         match &collection {
             Ok(()) => log(format_args!(
@@ -663,25 +666,6 @@ impl Daemon {
             Ok(false) => self.marker_problem = None,
             Err(e) => self.marker_problem(format!("joints_replaced: {e:#}")),
         }
-    }
-
-    /// Clears the standing alerts, which the old joints raised, through the alert book: each
-    /// leaves the open alerts with a `cleared` transition; the shimmy window forgets the old
-    /// joints' events. Returns the cleared alerts.
-    fn clear_alerts(&mut self, t: Option<f64>) -> Vec<crate::alerts::Alert> {
-        let book = &mut self.state.alerts;
-        book.shimmy_window.clear();
-        let mut cleared: Vec<crate::alerts::Alert> = book.open.drain(..).collect();
-        for a in &mut cleared {
-            if let Some(t) = t {
-                a.t_updated = t;
-            }
-            a.summary = format!(
-                "cleared: the steering joints were replaced (workshop marker); before: {}",
-                a.summary
-            );
-        }
-        cleared
     }
 
     /// Logs the journal's changes between writing and refusing to write, and journals an
