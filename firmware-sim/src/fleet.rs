@@ -70,7 +70,8 @@ pub struct FleetArgs {
     /// Response table of the EPS torsion-bar torque (`shimmy calibrate --signal torque`, on
     /// the nominal vehicle with its §15 column enabled). Default with --profile: the
     /// profile's `torque_table` when its mapping maps the torque. Events with a live torque
-    /// are then estimated from it (`shimmy estimate`'s rule).
+    /// are then estimated from it (`shimmy estimate`'s rule). Given, it replaces the profile's
+    /// torque tables, its chassis variants' too.
     #[arg(long, value_name = "FILE", conflicts_with = "angle_only")]
     pub torque_table: Option<PathBuf>,
     /// Estimate from the steering angle alone (no torque table).
@@ -372,6 +373,12 @@ pub struct VehicleResult {
     /// estimator used.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub signals: Option<shimmy::observer::SignalUse>,
+    /// With torque tables of chassis variants: the one the estimate was read from, and each
+    /// table's evidence.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub torque_table: Option<String>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub torque_tables: Vec<shimmy::observer::TableEvidence>,
     pub seconds: f64,
 }
 
@@ -786,6 +793,12 @@ fn result(
         events_recorded: r.events.len(),
         events_used: r.events_used,
         signals: r.signals,
+        torque_table: r
+            .torque_tables
+            .iter()
+            .find(|t| t.chosen)
+            .map(|t| t.name.clone()),
+        torque_tables: r.torque_tables.clone(),
         seconds: t0.elapsed().as_secs_f64(),
     }
 }
@@ -798,6 +811,11 @@ pub struct Scores {
     pub alert_rate_worn: (usize, usize),
     /// Alert raised / vehicles with c ≤ 0.07 mm (target ≤ 0.05).
     pub alert_rate_new: (usize, usize),
+    /// Alert raised / vehicles with 0.07 < c < 0.1 mm (the mismatch fleets' target ≤ 0.25).
+    pub alert_rate_band: (usize, usize),
+    /// With torque tables of chassis variants: vehicles read with each table, by name.
+    #[serde(skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub torque_tables: std::collections::BTreeMap<String, usize>,
     /// Mean |median − c| over vehicles with c ≥ 0.1 mm (target ≤ 0.03 mm on the column fleets; the earlier 0.02 mm is retired, docs/ACCURACY.md).
     pub mae_mm_above_0p1: f64,
     /// Interval contains c / all vehicles (target 0.85–0.95).
@@ -832,6 +850,13 @@ pub fn scores(v: &[VehicleResult], shimmy_confirm: usize) -> Scores {
     };
     let worn = count(&|r| (r.clearance_true_mm >= 0.15).then_some(r.clearance_alert));
     let new = count(&|r| (r.clearance_true_mm <= 0.07).then_some(r.clearance_alert));
+    let band = count(&|r| {
+        (r.clearance_true_mm > 0.07 && r.clearance_true_mm < 0.1).then_some(r.clearance_alert)
+    });
+    let mut torque_tables = std::collections::BTreeMap::new();
+    for t in v.iter().filter_map(|r| r.torque_table.as_ref()) {
+        *torque_tables.entry(t.clone()).or_insert(0) += 1;
+    }
     let big: Vec<f64> = v
         .iter()
         .filter(|r| r.clearance_true_mm >= 0.1)
@@ -871,6 +896,8 @@ pub fn scores(v: &[VehicleResult], shimmy_confirm: usize) -> Scores {
         vehicles: v.len(),
         alert_rate_worn: worn,
         alert_rate_new: new,
+        alert_rate_band: band,
+        torque_tables,
         mae_mm_above_0p1: if big.is_empty() {
             f64::NAN
         } else {
@@ -945,9 +972,26 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
             t.sensor.rate_hz
         );
     }
+    // The profile's chassis variants ride with its own torque table only.
+    let torque_alternatives = match (&args.torque_table, &setup.profile, &torque) {
+        (None, Some(p), Some(_)) => p.load_torque_alternatives()?,
+        _ => Vec::new(),
+    };
+    if !torque_alternatives.is_empty() {
+        eprintln!(
+            "fleet: torque tables of the profile's chassis variants beside the nominal one: {} \
+             (each vehicle is read with the one its events fit best)",
+            torque_alternatives
+                .iter()
+                .map(|a| a.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
     let tables = Tables {
         angle: Some(table),
         torque,
+        torque_alternatives,
     };
     let cfg = match &args.config {
         Some(p) => ObserverConfig::load(p)?,
@@ -1035,6 +1079,20 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
         "clearance alert, c <= 0.07 mm (target <= 5 %):  {}",
         frac(s.alert_rate_new)
     );
+    println!(
+        "clearance alert, 0.07 < c < 0.1 mm (mismatch target <= 25 %): {}",
+        frac(s.alert_rate_band)
+    );
+    if !s.torque_tables.is_empty() {
+        println!(
+            "read with the torque table of: {}",
+            s.torque_tables
+                .iter()
+                .map(|(n, k)| format!("{n} {k}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
     println!(
         "mean absolute error, c >= 0.1 mm (target <= 0.030 mm): {:.3} mm",
         s.mae_mm_above_0p1

@@ -435,6 +435,7 @@ mod tests {
             p_above: Some(p),
             events_used: 7,
             misfit: None,
+            chassis_variant: None,
         };
         // Just below the raise probability: nothing.
         let below = cfg.clearance_probability - 0.01;

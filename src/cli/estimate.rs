@@ -95,6 +95,9 @@ pub struct Args {
     /// Response table of the EPS torsion-bar torque (`shimmy calibrate --signal torque`);
     /// default: the profile's `torque_table`, used when the mapping maps a steering torque.
     /// Where the log carries a live torque the estimate comes from it, else from the angle.
+    /// A profile with `[[chassis.variants]]` has a torque table per variant too: every one is
+    /// fed and the report reads the one the events fit best (`torque_tables` in the JSON);
+    /// this option replaces them all with the one file.
     #[arg(long, value_name = "FILE", conflicts_with = "angle_only")]
     pub torque_table: Option<PathBuf>,
 
@@ -402,9 +405,15 @@ pub fn evaluate(args: &Args) -> anyhow::Result<(Option<Profile>, Estimation, Run
         (None, Some(prof)) => prof.load_torque_table()?,
         (None, None) => None,
     };
+    // The profile's chassis variants ride with its own torque table only.
+    let torque_alternatives = match (&args.torque_table, &profile, &torque) {
+        (None, Some(prof), Some(_)) => prof.load_torque_alternatives()?,
+        _ => Vec::new(),
+    };
     let tables = crate::pipeline::Tables {
         angle: table,
         torque,
+        torque_alternatives,
     };
     let (mapping_path, dbc) = match &profile {
         Some(p) => (

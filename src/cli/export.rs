@@ -138,10 +138,15 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
         }
     };
     let torque = profile.load_torque_table()?;
+    let torque_alternatives = match &torque {
+        Some(_) => profile.load_torque_alternatives()?,
+        None => Vec::new(),
+    };
     let torque_table_sha256 = match (&torque, &profile.torque_table_path) {
         (Some(_), Some(p)) => Some(sha256_file(p)?),
         _ => None,
     };
+    let torque_variants_sha256 = variants_sha256(&profile, &torque_alternatives)?;
     // The tables above were loaded with the correction applied (and refused had it been
     // fitted against another table); every estimate depends on it.
     let correction_sha256 = match &profile.correction_path {
@@ -157,6 +162,7 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
         table_sha256,
         torque_table_sha256,
         correction_sha256,
+        torque_variants_sha256,
         mapping_sha256: sha256_file(&profile.mapping_path)?,
         settings_sha256: sha256_bytes(&settings_json),
     };
@@ -166,6 +172,7 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
         crate::pipeline::Tables {
             angle: table,
             torque,
+            torque_alternatives,
         },
         cfg,
         TOOL,
@@ -267,4 +274,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// With chassis variants in use: the sha256 of each variant's name and table hash in order,
+/// each followed by a zero byte ([`Inputs::torque_variants_sha256`]); `None` without.
+fn variants_sha256(
+    profile: &Profile,
+    alternatives: &[crate::observer::Alternative],
+) -> anyhow::Result<Option<String>> {
+    if alternatives.is_empty() {
+        return Ok(None);
+    }
+    let mut parts = Vec::new();
+    for v in &profile.file.chassis.variants {
+        parts.extend_from_slice(v.name.as_bytes());
+        parts.push(0);
+        parts.extend_from_slice(sha256_file(&profile.dir.join(&v.torque_table))?.as_bytes());
+        parts.push(0);
+    }
+    Ok(Some(sha256_bytes(&parts)))
 }

@@ -242,9 +242,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             }
         );
     }
+    // The correction is fitted against the nominal tables: the chassis variants stay out.
     let tables = crate::pipeline::Tables {
         angle: angle.clone(),
         torque: torque.clone(),
+        torque_alternatives: Vec::new(),
     };
     let cache_path = args.events_cache.clone().unwrap_or_else(|| {
         let mut p = args.out.clone().into_os_string();

@@ -224,6 +224,27 @@ pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
         }
         None => None,
     };
+    // The profile's chassis variants ride with its own torque table, not with another one.
+    let torque_alternatives = match (&torque, &cfg.vehicle.torque_table, &cfg.profile) {
+        (Some(_), Some(p), Some(profile))
+            if is_profiles(profile.torque_table_path.as_deref(), p) =>
+        {
+            profile.load_torque_alternatives()?
+        }
+        _ => Vec::new(),
+    };
+    if !torque_alternatives.is_empty() {
+        eprintln!(
+            "shimmyd: {} torque table(s) of chassis variants beside the nominal one ({}): the \
+             estimate reads the one the events fit best",
+            torque_alternatives.len(),
+            torque_alternatives
+                .iter()
+                .map(|a| a.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
     // A baseline is read before the stage takes the tables (they are cloned only for it).
     let baseline = if cfg.vehicle.baseline_logs.is_empty() {
         None
@@ -246,6 +267,7 @@ pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
         let tables = crate::pipeline::Tables {
             angle: table.clone(),
             torque: torque.clone(),
+            torque_alternatives: torque_alternatives.clone(),
         };
         Some(
             crate::cli::estimate::baseline_of(
@@ -259,7 +281,11 @@ pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
             .context("vehicle.baseline_logs")?,
         )
     };
+    let has_torque = torque.is_some();
     let mut stage = ObserverStage::new(&cfg.settings, table)?.with_torque_table(torque)?;
+    if has_torque {
+        stage = stage.with_torque_alternatives(torque_alternatives)?;
+    }
     if let Some(b) = baseline {
         let used = stage.set_baseline(b);
         eprintln!(
@@ -283,14 +309,19 @@ fn with_correction(
     path: &std::path::Path,
     t: ResponseTable,
 ) -> anyhow::Result<ResponseTable> {
+    if is_profiles(own, path) {
+        profile.corrected(t)
+    } else {
+        Ok(t)
+    }
+}
+
+/// Whether `path` is the profile's own table `own` (the same file).
+fn is_profiles(own: Option<&std::path::Path>, path: &std::path::Path) -> bool {
     let same = |a: &std::path::Path, b: &std::path::Path| match (a.canonicalize(), b.canonicalize())
     {
         (Ok(a), Ok(b)) => a == b,
         _ => a == b,
     };
-    if own.is_some_and(|o| same(o, path)) {
-        profile.corrected(t)
-    } else {
-        Ok(t)
-    }
+    own.is_some_and(|o| same(o, path))
 }

@@ -66,6 +66,11 @@ pub struct Estimate {
     /// trusted.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub misfit: Option<String>,
+    /// When the profile has chassis variants and the vehicle's events fit one better than the
+    /// car model's own chassis: its name ("scrub radius 10 mm"), the estimate being read with
+    /// its table.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub chassis_variant: Option<String>,
 }
 
 /// [`EventStage::rejections`]: the counts and their explanation (counts, then the likely cause).

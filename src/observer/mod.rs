@@ -228,6 +228,11 @@ pub struct Report {
     /// With a torque table: the signal the estimate comes from, events per channel.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub signals: Option<SignalUse>,
+    /// With torque tables for structural alternatives of the chassis
+    /// ([`Observer::with_torque_alternative`]): each table's evidence, its weight and which
+    /// one the estimate is read from; absent otherwise.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub torque_tables: Vec<TableEvidence>,
     /// Method "linear", `phase = "either"`: posterior probability that the wheels' unbalance
     /// phase difference stayed the same over the events (src/observer/marginal.rs).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -323,6 +328,10 @@ pub struct Observer {
 struct TorqueChannel {
     table: ResponseTable,
     estimator: Estimator,
+    /// Torque tables of the same car under structural alternatives of its chassis (a scrub
+    /// radius, say: [`Observer::with_torque_alternative`]), each with its own estimator fed the
+    /// same events. The report reads the one whose events' marginal likelihood is highest.
+    alternatives: Vec<TorqueAlternative>,
     /// Its own extractor: the torque comes at another rate than the angle, and one extractor
     /// would redesign its filter at every switch.
     extractor: Extractor,
@@ -331,11 +340,122 @@ struct TorqueChannel {
     without: u64,
 }
 
+/// A torque table for a structural alternative of the chassis
+/// ([`Observer::with_torque_alternative`]).
+#[derive(Clone, Debug)]
+pub struct Alternative {
+    /// How reports name it ("scrub radius 10 mm").
+    pub name: String,
+    /// Its prior probability, before any event: the nominal chassis has 1 minus the sum of
+    /// its alternatives'.
+    pub prior: f64,
+    pub table: ResponseTable,
+}
+
+/// One structural alternative inside the torque channel, with its estimator.
+struct TorqueAlternative {
+    name: String,
+    ln_prior: f64,
+    table: ResponseTable,
+    estimator: Estimator,
+}
+
+/// The name the report gives the torque table of the profile's own chassis when the channel
+/// has alternatives.
+pub const NOMINAL_TABLE: &str = "nominal";
+
 impl TorqueChannel {
     /// Whether the report's estimate comes from this channel: once it has used an event.
     fn active(&self) -> bool {
         self.estimator.events_used() > 0
     }
+
+    /// The estimators, the nominal first, with their names and ln prior probabilities.
+    fn all(&self) -> impl Iterator<Item = (&str, &Estimator, f64)> {
+        let nominal = 1.0
+            - self
+                .alternatives
+                .iter()
+                .map(|a| a.ln_prior.exp())
+                .sum::<f64>();
+        std::iter::once((NOMINAL_TABLE, &self.estimator, nominal.ln())).chain(
+            self.alternatives
+                .iter()
+                .map(|a| (a.name.as_str(), &a.estimator, a.ln_prior)),
+        )
+    }
+
+    /// Each table's ln posterior weight up to a constant (ln prior + tempered ln evidence),
+    /// `None` before the table has a finite evidence.
+    fn ln_weights(&self) -> impl Iterator<Item = Option<f64>> + '_ {
+        self.all().map(|(_, e, ln_prior)| {
+            e.ln_evidence()
+                .map(|l| l[0] + ln_prior)
+                .filter(|l| l.is_finite())
+        })
+    }
+
+    /// Index into [`Self::all`] of the estimator the report reads: the one with the highest
+    /// posterior weight, the nominal while none has one.
+    fn chosen(&self) -> usize {
+        let mut best = (0, f64::NEG_INFINITY);
+        for (i, l) in self.ln_weights().enumerate() {
+            if let Some(l) = l.filter(|&l| l > best.1) {
+                best = (i, l);
+            }
+        }
+        best.0
+    }
+
+    fn chosen_estimator(&self) -> &Estimator {
+        match self.chosen() {
+            0 => &self.estimator,
+            i => &self.alternatives[i - 1].estimator,
+        }
+    }
+
+    /// Every table's evidence and its weight (softmax of the ln evidence: the posterior
+    /// probability of each alternative under equal prior odds); empty without alternatives.
+    fn evidence(&self) -> Vec<TableEvidence> {
+        if self.alternatives.is_empty() {
+            return Vec::new();
+        }
+        let chosen = self.chosen();
+        let lw: Vec<Option<f64>> = self.ln_weights().collect();
+        let max = lw
+            .iter()
+            .flatten()
+            .copied()
+            .fold(f64::NEG_INFINITY, f64::max);
+        let z: f64 = lw.iter().flatten().map(|l| (l - max).exp()).sum();
+        self.all()
+            .zip(lw)
+            .enumerate()
+            .map(|(i, ((name, e, ln_prior), l))| TableEvidence {
+                name: name.to_string(),
+                prior: ln_prior.exp(),
+                ln_evidence: e.ln_evidence().map(|l| l[0]).filter(|l| l.is_finite()),
+                weight: l.map(|l| (l - max).exp() / z),
+                chosen: i == chosen,
+            })
+            .collect()
+    }
+}
+
+/// With torque tables for structural alternatives of the chassis: one table's evidence.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TableEvidence {
+    /// [`NOMINAL_TABLE`] or the alternative's name (its profile's `[[chassis.variants]]`).
+    pub name: String,
+    /// Its prior probability ([`Alternative::prior`]).
+    pub prior: f64,
+    /// ln of the events' marginal likelihood under this table (with the evidence power);
+    /// null before an event.
+    pub ln_evidence: Option<f64>,
+    /// Its posterior probability among the tables (prior times evidence, normalised).
+    pub weight: Option<f64>,
+    /// Whether the estimate is this table's.
+    pub chosen: bool,
 }
 
 impl Observer {
@@ -385,6 +505,7 @@ impl Observer {
         self.torque = Some(TorqueChannel {
             table,
             estimator,
+            alternatives: Vec::new(),
             extractor: Extractor::new(),
             noise,
             used: 0,
@@ -393,18 +514,80 @@ impl Observer {
         Ok(self)
     }
 
-    /// The torque channel's estimator with its table, for a caller that feeds it
-    /// ([`Self::new_caller_fed`]); `None` without a torque table.
-    pub fn torque_estimator_mut(&mut self) -> Option<(&mut Estimator, &ResponseTable)> {
-        let t = self.torque.as_mut()?;
-        Some((&mut t.estimator, &t.table))
+    /// Adds a torque table for a structural alternative of the chassis (built on the same
+    /// chassis with, say, another scrub radius: MODEL.md §14), named `name`. Its estimator is
+    /// fed every event the nominal torque table's is, and the report reads whichever table's
+    /// events, weighed by each table's prior probability, have the highest marginal likelihood
+    /// ([`Report::torque_tables`]): a car whose
+    /// chassis departs from the nominal one in that named way is read with the table that
+    /// describes it instead of a nominal table that reads its steady shake as wear. Needs
+    /// [`Self::with_torque_table`] first, and a table of the same torque sensor.
+    pub fn with_torque_alternative(mut self, alt: Alternative) -> anyhow::Result<Observer> {
+        let Alternative { name, prior, table } = alt;
+        let name = name.as_str();
+        let cfg = self.torque_estimator_config();
+        let Some(ch) = self.torque.as_mut() else {
+            anyhow::bail!("torque table alternative `{name}` without a nominal torque table");
+        };
+        if table.sensor != ch.table.sensor {
+            anyhow::bail!(
+                "torque table alternative `{name}`: built for another torque sensor ({:?}) than                  the nominal table ({:?})",
+                table.sensor,
+                ch.table.sensor
+            );
+        }
+        if name == NOMINAL_TABLE || ch.alternatives.iter().any(|a| a.name == name) {
+            anyhow::bail!("torque table alternative `{name}`: the name is taken");
+        }
+        let others: f64 = ch.alternatives.iter().map(|a| a.ln_prior.exp()).sum();
+        if !(prior > 0.0 && prior + others < 1.0) {
+            anyhow::bail!(
+                "torque table alternative `{name}`: its prior probability {prior} must be above \
+                 0, and the alternatives' together ({}) below 1",
+                prior + others
+            );
+        }
+        let estimator = Estimator::new(&table, cfg)?;
+        ch.alternatives.push(TorqueAlternative {
+            name: name.to_string(),
+            ln_prior: prior.ln(),
+            table,
+            estimator,
+        });
+        Ok(self)
     }
 
-    /// The estimator the report reads: the torque's once it has used an event, else the
-    /// angle's.
+    /// The chassis variant the estimate is read with ([`Self::with_torque_alternative`]): its
+    /// name while the torque channel is active and one of its alternatives fits the events
+    /// best, `None` otherwise (the nominal chassis, or no alternatives).
+    pub fn chassis_variant(&self) -> Option<String> {
+        let t = self.torque.as_ref().filter(|t| t.active())?;
+        match t.chosen() {
+            0 => None,
+            i => Some(t.alternatives[i - 1].name.clone()),
+        }
+    }
+
+    /// The torque channel's estimators with their tables (the nominal first, then each
+    /// alternative), for a caller that feeds them ([`Self::new_caller_fed`]); empty without a
+    /// torque table. Each takes every torque event.
+    pub fn torque_estimators_mut(
+        &mut self,
+    ) -> impl Iterator<Item = (&mut Estimator, &ResponseTable)> + '_ {
+        self.torque.iter_mut().flat_map(|t| {
+            std::iter::once((&mut t.estimator, &t.table)).chain(
+                t.alternatives
+                    .iter_mut()
+                    .map(|a| (&mut a.estimator, &a.table)),
+            )
+        })
+    }
+
+    /// The estimator the report reads: the torque's once it has used an event (of its
+    /// tables, the one the events fit best), else the angle's.
     pub fn active_estimator(&self) -> Option<&Estimator> {
         match &self.torque {
-            Some(t) if t.active() => Some(&t.estimator),
+            Some(t) if t.active() => Some(t.chosen_estimator()),
             _ => self.estimator.as_ref(),
         }
     }
@@ -435,7 +618,10 @@ impl Observer {
         }
         let tcfg = self.torque_estimator_config();
         if let Some(t) = self.torque.as_mut() {
-            t.estimator = Estimator::new(&t.table, tcfg)?;
+            t.estimator = Estimator::new(&t.table, tcfg.clone())?;
+            for a in &mut t.alternatives {
+                a.estimator = Estimator::new(&a.table, tcfg.clone())?;
+            }
         }
         Ok(())
     }
@@ -790,6 +976,9 @@ impl Observer {
         }
         if let (true, true, Some(f)) = (feeds, used, tf.as_ref()) {
             feed_event(&mut ch.estimator, &ch.table, f, rec);
+            for a in &mut ch.alternatives {
+                feed_event(&mut a.estimator, &a.table, f, rec);
+            }
         }
         TorqueEventOut {
             rms_bp_nm: tf.map(|f| f.rms_deg),
@@ -885,10 +1074,24 @@ impl Observer {
                 format!("below {:.2} mm ({} events)", s.below_mm, s.events_used),
             ),
         };
-        let verdict = if self.torque.as_ref().is_some_and(TorqueChannel::active) {
-            format!("{verdict} from the steering torque")
-        } else {
-            verdict
+        let torque_tables = self
+            .torque
+            .as_ref()
+            .map(TorqueChannel::evidence)
+            .unwrap_or_default();
+        let verdict = match &self.torque {
+            Some(t) if t.active() => match torque_tables.iter().find(|e| e.chosen) {
+                Some(e) if e.name != NOMINAL_TABLE => format!(
+                    "{verdict} from the steering torque, read with the torque table for {} \
+                     (probability {:.2} among the profile's {} torque tables, by how well the \
+                     events fit each)",
+                    e.name,
+                    e.weight.unwrap_or(f64::NAN),
+                    torque_tables.len()
+                ),
+                _ => format!("{verdict} from the steering torque"),
+            },
+            _ => verdict,
         };
         let sensor_noise = self.measured_noise();
         let (model_fit, misfit) = self.fit_check_with(&sensor_noise);
@@ -920,6 +1123,7 @@ impl Observer {
                 events_used_torque: t.used,
                 events_without_torque: t.without,
             }),
+            torque_tables,
             p_wheel_phase_fixed: active.and_then(|e| e.phase_fixed_probability()),
             model_fit,
             sensor_noise,

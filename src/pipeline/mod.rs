@@ -352,6 +352,7 @@ mod tests {
                 p_above: Some(p),
                 events_used: self.done as u32,
                 misfit: None,
+                chassis_variant: None,
             })
         }
     }

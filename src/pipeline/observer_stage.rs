@@ -50,13 +50,16 @@ pub const MAX_EVIDENCE: usize = 2000;
 pub struct Tables {
     pub angle: Option<ResponseTable>,
     pub torque: Option<ResponseTable>,
+    /// Torque tables of structural alternatives of the chassis, by name
+    /// ([`Observer::with_torque_alternative`]); used only beside `torque`.
+    pub torque_alternatives: Vec<crate::observer::Alternative>,
 }
 
 impl From<Option<ResponseTable>> for Tables {
     fn from(angle: Option<ResponseTable>) -> Tables {
         Tables {
             angle,
-            torque: None,
+            ..Tables::default()
         }
     }
 }
@@ -443,10 +446,16 @@ impl ObserverStage {
             }
             _ => false,
         };
-        let torque = match (ev.torque_nm, self.obs.torque_estimator_mut()) {
-            (Some(t), Some((est, table))) => feed(est, table, t.rms, t.peak, t.cruise_rms),
-            _ => false,
-        };
+        // Every torque table (the nominal and its structural alternatives) takes the event;
+        // the nominal's answer is the channel's.
+        let mut torque = None;
+        if let Some(t) = ev.torque_nm {
+            for (est, table) in self.obs.torque_estimators_mut() {
+                let took = feed(est, table, t.rms, t.peak, t.cruise_rms);
+                torque.get_or_insert(took);
+            }
+        }
+        let torque = torque.unwrap_or(false);
         (angle, torque)
     }
 
@@ -455,6 +464,18 @@ impl ObserverStage {
         if let Some(t) = table {
             self.obs = self.obs.with_torque_table(t).context("torque table")?;
             self.has_table = true;
+        }
+        Ok(self)
+    }
+
+    /// Adds torque tables of structural alternatives of the chassis
+    /// ([`Observer::with_torque_alternative`]); needs the torque table first.
+    pub fn with_torque_alternatives(
+        mut self,
+        alternatives: Vec<crate::observer::Alternative>,
+    ) -> anyhow::Result<Self> {
+        for a in alternatives {
+            self.obs = self.obs.with_torque_alternative(a)?;
         }
         Ok(self)
     }
@@ -621,6 +642,7 @@ impl EventStage for ObserverStage {
             p_above: used.then(|| est.prob_above(self.clearance_mm)),
             events_used: s.events_used,
             misfit: used.then(|| self.obs.fit_check().1).flatten(),
+            chassis_variant: used.then(|| self.obs.chassis_variant()).flatten(),
         })
     }
 }

@@ -9,6 +9,7 @@
 //! | `mapping.toml` | which DBC signals carry steering angle, speed, brake, acceleration ([`crate::signals::mapping`]) |
 //! | `bus.toml` | the car's bus as it is on the road: message periods, counters, checksums, sign conventions ([`bus`]); firmware-sim emulates it and [`identify`] recognises it |
 //! | `table.json` | the response table built for exactly this chassis and steering angle sensor (`shimmy calibrate --profile NAME`) |
+//! | `table_torque*.json` | the EPS torque's tables: the chassis's own and one per `[[chassis.variants]]` entry (a structural alternative such as a scrub radius), among which each vehicle's events choose ([`Profile::load_torque_alternatives`]) |
 //!
 //! What this module is: the file format, the search path, and the checks that the parts fit
 //! together (the table's chassis hash and sensor against the profile's). What it is not: the
@@ -93,6 +94,39 @@ pub struct ChassisSection {
     /// default (±10 % on k_s, c_s, k_t, k_g, c_g; unbalance ×0.5–2; road noise ×0.7–1.4).
     #[serde(default)]
     pub prior: Option<PriorSection>,
+    /// `[[chassis.variants]]`: structural alternatives of this chassis that a car of the model
+    /// may have and that the nuisance prior does not cover (a scrub radius turns the brake
+    /// force into a steady kingpin moment, MODEL.md §14, which the nominal table would read as
+    /// wear). Each names a torque table built on the chassis with that change; every estimate
+    /// feeds all of the profile's torque tables and reads the one the vehicle's events fit best.
+    #[serde(default)]
+    pub variants: Vec<ChassisVariant>,
+}
+
+/// One `[[chassis.variants]]` entry.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChassisVariant {
+    /// How reports name it ("scrub radius 10 mm").
+    pub name: String,
+    /// The kingpin's scrub radius r_s of this variant (mm; MODEL.md §9 `scrub_radius_m`).
+    pub scrub_radius_mm: f64,
+    /// Its torque table (`shimmy calibrate --signal torque` on the chassis with this scrub
+    /// radius and the §15 column), relative to the profile folder.
+    pub torque_table: String,
+    /// The probability that a car of this model has this variant rather than the profile's
+    /// chassis, before any of its events is seen; default [`DEFAULT_VARIANT_PRIOR`]. A vehicle
+    /// is read with the variant's table once its events favour it by more than these odds.
+    #[serde(default = "default_variant_prior")]
+    pub prior_probability: f64,
+}
+
+/// The prior probability of a chassis variant when its entry gives none: the profile's own
+/// chassis stays the expected one (docs/ACCURACY.md, "Chassis variants", measures the choice).
+pub const DEFAULT_VARIANT_PRIOR: f64 = 0.2;
+
+fn default_variant_prior() -> f64 {
+    DEFAULT_VARIANT_PRIOR
 }
 
 /// `[chassis.prior]` ([`NuisanceRanges`]).
@@ -344,6 +378,56 @@ impl Profile {
             .validate()
             .context("sensors.steer_angle")
             .with_context(ctx)?;
+        let total: f64 = file
+            .chassis
+            .variants
+            .iter()
+            .map(|v| v.prior_probability)
+            .sum();
+        if total >= 1.0 {
+            bail!(
+                "{}: the chassis variants' prior probabilities add up to {total}: they must \
+                 leave the profile's own chassis some",
+                ctx()
+            );
+        }
+        let mut names = std::collections::HashSet::new();
+        for v in &file.chassis.variants {
+            if !(v.scrub_radius_mm.is_finite() && (0.0..=50.0).contains(&v.scrub_radius_mm)) {
+                bail!(
+                    "{}: chassis variant `{}`: scrub_radius_mm must be 0 to 50 mm (got {})",
+                    ctx(),
+                    v.name,
+                    v.scrub_radius_mm
+                );
+            }
+            if v.name.trim().is_empty()
+                || v.name == crate::observer::NOMINAL_TABLE
+                || !names.insert(v.name.as_str())
+            {
+                bail!(
+                    "{}: chassis variant names must be unique, not empty and not `{}` (got `{}`)",
+                    ctx(),
+                    crate::observer::NOMINAL_TABLE,
+                    v.name
+                );
+            }
+            if !(v.prior_probability > 0.0 && v.prior_probability < 1.0) {
+                bail!(
+                    "{}: chassis variant `{}`: prior_probability must be between 0 and 1 (got {})",
+                    ctx(),
+                    v.name,
+                    v.prior_probability
+                );
+            }
+            if file.torque_table.is_none() {
+                bail!(
+                    "{}: chassis variant `{}` needs the nominal torque_table beside it",
+                    ctx(),
+                    v.name
+                );
+            }
+        }
         let opt = |f: &Option<String>| f.as_ref().map(|f| dir.join(f));
         let table_path = opt(&file.table);
         let torque_table_path = opt(&file.torque_table);
@@ -422,6 +506,55 @@ impl Profile {
         Ok(Some(self.corrected(t)?))
     }
 
+    /// The chassis of a variant: the profile's with the variant's change.
+    pub fn variant_vehicle(&self, v: &ChassisVariant) -> VehicleParams {
+        let mut p = self.vehicle.clone();
+        p.steering.scrub_radius_m = v.scrub_radius_mm / 1000.0;
+        p
+    }
+
+    /// The torque tables of the profile's `[[chassis.variants]]`, by name, each checked as
+    /// [`Self::check_torque_table`] checks the nominal one but against its variant's chassis.
+    /// Empty when the profile has no variants or [`Self::load_torque_table`] gives no table
+    /// (nothing to choose beside). The profile's torque correction, fitted against the nominal
+    /// table, is applied to every variant's table too: its gains describe the car's signal
+    /// path (sensor scale, column transfer), which a scrub radius does not change, and the
+    /// tables' evidence compares only on the same corrected features.
+    pub fn load_torque_alternatives(&self) -> anyhow::Result<Vec<crate::observer::Alternative>> {
+        let variants = &self.file.chassis.variants;
+        if variants.is_empty() || self.torque_table_path.is_none() {
+            return Ok(Vec::new());
+        }
+        if self.mapping.steer_torque.is_none() {
+            return Ok(Vec::new());
+        }
+        // The nominal table as loaded carries the profile's torque correction, checked against
+        // the table it was fitted on.
+        let correction = self.load_torque_table()?.and_then(|t| t.correction);
+        let mut out = Vec::with_capacity(variants.len());
+        for v in variants {
+            let path = self.dir.join(&v.torque_table);
+            let ctx = || {
+                format!(
+                    "profile {}: chassis variant `{}`: torque table {}",
+                    self.name,
+                    v.name,
+                    path.display()
+                )
+            };
+            let mut t = ResponseTable::load(&path).with_context(ctx)?;
+            self.check_torque_table_on(&t, &self.variant_vehicle(v))
+                .with_context(ctx)?;
+            t.correction = correction.clone();
+            out.push(crate::observer::Alternative {
+                name: v.name.clone(),
+                prior: v.prior_probability,
+                table: t,
+            });
+        }
+        Ok(out)
+    }
+
     /// The profile's correction ([`ProfileFile::correction`]), `None` when it names none.
     pub fn load_correction(&self) -> anyhow::Result<Option<CorrectionFile>> {
         match &self.correction_path {
@@ -459,7 +592,16 @@ impl Profile {
 
     /// Refuses a torque table built for another chassis, prior or torque rate.
     pub fn check_torque_table(&self, t: &ResponseTable) -> anyhow::Result<()> {
-        t.check_torque_vehicle(&self.vehicle)?;
+        self.check_torque_table_on(t, &self.vehicle)
+    }
+
+    /// [`Self::check_torque_table`] against `vehicle` (the profile's, or a variant's).
+    fn check_torque_table_on(
+        &self,
+        t: &ResponseTable,
+        vehicle: &VehicleParams,
+    ) -> anyhow::Result<()> {
+        t.check_torque_vehicle(vehicle)?;
         if let Some(ts) = &self.file.sensors.steer_torque {
             if (t.sensor.rate_hz - ts.rate_hz).abs() > 0.05 * ts.rate_hz {
                 bail!(

@@ -63,6 +63,7 @@ mod tests {
             p_above: Some(0.5),
             events_used: 12,
             misfit: None,
+            chassis_variant: None,
         };
         let v = |e: Estimate| super::verdict(&[], Some(&e), 12, &cfg);
         let ok = v(est(Some(0.085), 0.081, 0.093, true));
@@ -87,6 +88,20 @@ mod tests {
         assert!(
             m.headline.contains("does not fit") && m.headline.contains("noisier"),
             "{m:?}"
+        );
+        // An estimate read with a chassis variant's table keeps its condition and says which
+        // geometry it was read for and what to check.
+        let variant = Estimate {
+            chassis_variant: Some("scrub radius 10 mm".into()),
+            ..est(Some(0.085), 0.081, 0.093, true)
+        };
+        let c = v(variant);
+        assert_eq!(c.condition, "ok", "{c:?}");
+        assert!(
+            c.headline.contains("0.085")
+                && c.headline.contains("scrub radius 10 mm")
+                && c.headline.contains("wheels' offset"),
+            "{c:?}"
         );
     }
 }
@@ -237,6 +252,16 @@ fn verdict(open: &[Alert], est: Option<&Estimate>, events: usize, cfg: &AlertsSe
                 "No alert, but no clearance estimate is available (no response table or no usable event).".into(),
             ),
         }
+    };
+    // A chassis variant is a finding of its own: the car's steering geometry is not its
+    // model's (a scrub radius the model does not have comes from the wheels' offset).
+    let headline = match est.and_then(|e| e.chassis_variant.as_deref()) {
+        Some(name) => format!(
+            "{headline} The braking shake fits this car's steering best with a {name} (not the \
+             car model's own geometry), and the clearance was estimated for it: check the \
+             wheels' offset (non-standard wheels or spacers change the scrub radius)."
+        ),
+        None => headline,
     };
     Verdict {
         condition: condition.into(),
