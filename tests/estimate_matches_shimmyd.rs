@@ -167,3 +167,53 @@ fn vehicles_with_a_steering_column_give_the_same_torque_estimate() {
         );
     }
 }
+
+/// With a chassis variant (the reference EPS profile's 10 mm scrub radius) on vehicles that
+/// have it: both read the same table, `estimate`'s report naming it among its torque tables
+/// and shimmyd's estimate carrying it as the chassis variant, and agree on the estimate.
+#[test]
+fn vehicles_with_a_scrub_radius_are_read_with_the_same_chassis_variant() {
+    let dir = tempfile::tempdir().unwrap();
+    let plant = e2e_common::column_vehicle(dir.path());
+    let text = std::fs::read_to_string(&plant).unwrap();
+    let scrub = text.replacen("scrub_radius_m = 0.0 ", "scrub_radius_m = 0.01 ", 1);
+    assert_ne!(text, scrub, "the plant file sets scrub_radius_m");
+    std::fs::write(&plant, scrub).unwrap();
+    let extra = [
+        "--plant".as_ref(),
+        plant.as_os_str(),
+        "--clearance-mm".as_ref(),
+        "0.2".as_ref(),
+    ];
+    let logs = fleet_logs(dir.path(), "shimmy_reference_eps", 2, 20, 77200, &extra);
+    let mut variants = 0;
+    for k in 0..2 {
+        let log = logs.join(format!("fleet_{}.log", 77200 + k));
+        let run = dir.path().join(format!("run{k}"));
+        let e = compare_on("shimmy_reference_eps", &log, &run);
+        let chosen = e["torque_tables"]
+            .as_array()
+            .expect("torque_tables")
+            .iter()
+            .find(|t| t["chosen"] == true)
+            .map(|t| t["name"].as_str().unwrap().to_string())
+            .expect("a chosen table");
+        let j = e2e_common::Journal::read(&run.join("journal"));
+        let daemon = j.estimate.unwrap_or(Value::Null)["chassis_variant"].clone();
+        if chosen == "nominal" {
+            assert!(daemon.is_null(), "{}: {daemon}", log.display());
+        } else {
+            assert_eq!(daemon, chosen.as_str(), "{}", log.display());
+            assert!(
+                e["verdict"].as_str().unwrap().contains(&chosen),
+                "{}",
+                e["verdict"]
+            );
+            variants += 1;
+        }
+    }
+    assert!(
+        variants >= 1,
+        "no vehicle with a scrub radius read with its variant's table"
+    );
+}

@@ -787,7 +787,7 @@ fn rav4_with_correction(dir: &Path, name: &str, correction: &str) -> PathBuf {
 }
 
 /// The run's hash as docs/FLEET.md defines it: sha256 over the parts, each followed by a zero
-/// byte, the torque table's and the correction's only when the run has them.
+/// byte, the torque table's, the correction's and the chassis variants' only when the run has them.
 fn documented_run_sha256(profile: &Profile, vehicle: &str, logs: &[&Path]) -> String {
     let settings = serde_json::to_vec(&ObserverConfig::default()).unwrap();
     let settings = Sha256::digest(&settings)
@@ -812,6 +812,21 @@ fn documented_run_sha256(profile: &Profile, vehicle: &str, logs: &[&Path]) -> St
     }
     if let Some(c) = &profile.correction_path {
         parts.push(format!("correction:{}", sha256_hex(c)));
+    }
+    // Chassis variants beside the torque table: each name and its table's sha256.
+    if profile.torque_table_path.is_some() && !profile.file.chassis.variants.is_empty() {
+        let mut v = Vec::new();
+        for c in &profile.file.chassis.variants {
+            v.extend_from_slice(c.name.as_bytes());
+            v.push(0);
+            v.extend_from_slice(sha256_hex(&profile.dir.join(&c.torque_table)).as_bytes());
+            v.push(0);
+        }
+        let v: String = Sha256::digest(&v)
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect();
+        parts.push(format!("variants:{v}"));
     }
     parts.extend(logs.iter().map(|l| {
         blake3::hash(&std::fs::read(l).unwrap())

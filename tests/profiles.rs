@@ -120,3 +120,103 @@ fn the_reference_profile_table_fits_its_chassis_and_sensor_and_another_sensor_is
         "{e}"
     );
 }
+
+/// A copy of profile `name` in a fresh folder, every file it names made absolute, with
+/// `profile.toml` passed through `edit`.
+fn profile_copy(name: &str, edit: impl Fn(String) -> String) -> std::path::PathBuf {
+    let src = repo(&format!("config/vehicles/{name}"));
+    let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("profile_copy_{name}_{}", std::process::id()))
+        .join(format!("{:x}", rand_tag()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut text = std::fs::read_to_string(src.join("profile.toml")).unwrap();
+    for key in ["mapping", "table", "torque_table", "bus"] {
+        let line = text
+            .lines()
+            .find(|l| l.starts_with(&format!("{key} = ")))
+            .map(str::to_string);
+        if let Some(line) = line {
+            let file = line.split('"').nth(1).unwrap();
+            let abs = src.join(file).canonicalize().unwrap();
+            text = text.replace(&line, &format!("{key} = \"{}\"", abs.display()));
+        }
+    }
+    let abs = |f: &str| src.join(f).canonicalize().unwrap().display().to_string();
+    text = text.replace(
+        "torque_table = \"table_torque_scrub10mm.json\"",
+        &format!("torque_table = \"{}\"", abs("table_torque_scrub10mm.json")),
+    );
+    std::fs::write(dir.join("profile.toml"), edit(text)).unwrap();
+    dir
+}
+
+fn rand_tag() -> u128 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos()
+}
+
+/// A chassis variant's torque table is checked against the variant's chassis (the profile's
+/// with the variant's scrub radius), not the profile's own; the nominal table is not the
+/// variant's, and a variant whose scrub radius is not its table's is refused, as are priors
+/// that leave the profile's own chassis nothing and a variant without the nominal table.
+#[test]
+fn chassis_variants_are_checked_against_their_own_chassis() {
+    let p = Profile::load("shimmy_reference_eps").unwrap();
+    let alts = p.load_torque_alternatives().unwrap();
+    assert_eq!(alts.len(), 1);
+    let a = &alts[0];
+    assert_eq!(a.name, "scrub radius 10 mm");
+    assert_eq!(a.prior, profile::DEFAULT_VARIANT_PRIOR);
+    let nominal = p.load_torque_table().unwrap().unwrap();
+    assert_eq!(a.table.sensor, nominal.sensor);
+    assert_eq!(a.table.clearance_mm, nominal.clearance_mm);
+    // The variant's table is not the profile's own chassis's.
+    let e = format!("{:#}", p.check_torque_table(&a.table).unwrap_err());
+    assert!(e.contains("[column] enabled"), "{e}");
+
+    let wrong = profile_copy("shimmy_reference_eps", |t| {
+        t.replace("scrub_radius_mm = 10.0", "scrub_radius_mm = 5.0")
+    });
+    let wp = Profile::load_dir(&wrong).unwrap();
+    let e = format!("{:#}", wp.load_torque_alternatives().unwrap_err());
+    assert!(e.contains("chassis variant `scrub radius 10 mm`"), "{e}");
+
+    let greedy = profile_copy("shimmy_reference_eps", |t| {
+        t.replace(
+            "scrub_radius_mm = 10.0",
+            "scrub_radius_mm = 10.0\nprior_probability = 1.0",
+        )
+    });
+    let e = format!("{:#}", Profile::load_dir(&greedy).unwrap_err());
+    assert!(
+        e.contains("prior_probability") || e.contains("add up"),
+        "{e}"
+    );
+
+    let alone = profile_copy("shimmy_reference_eps", |t| {
+        t.lines()
+            .filter(|l| !l.starts_with("torque_table = \"/"))
+            .collect::<Vec<_>>()
+            .join("\n")
+            .replacen(
+                "[[chassis.variants]]",
+                &format!(
+                    "[[chassis.variants]]\ntorque_table = \"{}\"",
+                    repo("config/vehicles/shimmy_reference_eps/table_torque_scrub10mm.json")
+                        .display()
+                ),
+                1,
+            )
+    });
+    let e = format!("{:#}", Profile::load_dir(&alone).unwrap_err());
+    assert!(e.contains("needs the nominal torque_table"), "{e}");
+
+    // Without variants the list is empty, and a profile whose mapping maps no torque has none.
+    let plain = Profile::load("shimmy_reference").unwrap();
+    assert!(plain.load_torque_alternatives().unwrap().is_empty());
+    let mut no_torque = p.clone();
+    no_torque.mapping.steer_torque = None;
+    assert!(no_torque.load_torque_alternatives().unwrap().is_empty());
+}

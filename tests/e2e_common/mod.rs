@@ -534,12 +534,16 @@ pub fn profile_copy(profile: &str, dir: &Path, name: &str) -> PathBuf {
         &format!("table = {:?}", abs("table.json")),
         1,
     );
-    if text.contains("torque_table = \"table_torque.json\"") {
-        rewritten = rewritten.replacen(
-            "torque_table = \"table_torque.json\"",
-            &format!("torque_table = {:?}", abs("table_torque.json")),
-            1,
-        );
+    // The torque tables: the profile's own and its chassis variants' (`torque_table = "…"`
+    // lines naming a file in the folder).
+    let torque_lines: Vec<String> = text
+        .lines()
+        .filter(|l| l.starts_with("torque_table = \"") && !l.contains('/'))
+        .map(str::to_string)
+        .collect();
+    for line in torque_lines {
+        let file = line.split('"').nth(1).unwrap();
+        rewritten = rewritten.replacen(&line, &format!("torque_table = {:?}", abs(file)), 1);
     }
     assert!(
         rewritten.contains(&abs("table.json")),
