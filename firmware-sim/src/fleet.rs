@@ -1497,6 +1497,8 @@ mod tests {
             events_recorded: 30,
             events_used: 30,
             signals: None,
+            torque_table: None,
+            torque_tables: Vec::new(),
             seconds: 0.0,
         };
         let fleet = [
@@ -1512,5 +1514,47 @@ mod tests {
         let s = scores(&fleet, 1);
         assert_eq!(s.shimmy_agree, (1, 3));
         assert_eq!(s.shimmy_too_few_events, (0, 0));
+    }
+
+    /// The 0.07-0.1 mm band counts the vehicles strictly between the two limits, and the
+    /// tables read are counted by name.
+    #[test]
+    fn the_band_score_and_the_tables_read_are_counted() {
+        let v = |c: f64, alert: bool, table: Option<&str>| VehicleResult {
+            index: 0,
+            seed: 0,
+            clearance_true_mm: c,
+            clearance_mm: Some(c),
+            median_mm: Some(c),
+            interval_mm: Some([0.5 * c, 2.0 * c]),
+            detectable: true,
+            below_mm: None,
+            clearance_alert: alert,
+            p_clearance_above_threshold: None,
+            p_wheel_phase_fixed: None,
+            model_fit: None,
+            shimmy_alert: false,
+            events_55: 0,
+            true_sw_55_deg: None,
+            events_true: 30,
+            events_recorded: 30,
+            events_used: 30,
+            signals: None,
+            torque_table: table.map(str::to_string),
+            torque_tables: Vec::new(),
+            seconds: 0.0,
+        };
+        let fleet = [
+            v(0.07, true, Some("nominal")), // c <= 0.07: not the band
+            v(0.071, true, Some("scrub")),
+            v(0.09, false, Some("scrub")),
+            v(0.1, true, None), // c = 0.1: not the band
+        ];
+        let s = scores(&fleet, 2);
+        assert_eq!(s.alert_rate_band, (1, 2));
+        assert_eq!(s.alert_rate_new, (1, 1));
+        assert_eq!(s.torque_tables.get("scrub"), Some(&2));
+        assert_eq!(s.torque_tables.get("nominal"), Some(&1));
+        assert_eq!(s.torque_tables.len(), 2);
     }
 }
