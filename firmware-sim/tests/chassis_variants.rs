@@ -5,79 +5,37 @@
 //! `[[chassis.variants]]` one). A car with the scrub radius must be read with the variant's
 //! table, a car without it with the nominal one, and the report must say which and why.
 
-use std::path::{Path, PathBuf};
+mod fleet_common;
 
-use clap::Parser;
-use firmware_sim::fleet::{run, FleetArgs};
 use serde_json::Value;
 
-fn repo(rel: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
-        .join(rel)
-}
-
-/// config/vehicle/default.toml with its [column] enabled and the scrub radius `scrub_m`.
-fn plant(dir: &Path, scrub_m: f64) -> PathBuf {
-    let text = std::fs::read_to_string(repo("config/vehicle/default.toml")).unwrap();
-    let (head, tail) = text.split_once("[column]").expect("a [column] section");
-    let tail = tail.replacen("enabled = false", "enabled = true", 1);
-    let head = head.replacen(
-        "scrub_radius_m = 0.0 ",
-        &format!("scrub_radius_m = {scrub_m} "),
-        1,
-    );
-    assert!(head.contains(&format!("scrub_radius_m = {scrub_m} ")));
-    let path = dir.join("plant.toml");
-    std::fs::write(&path, format!("{head}[column]{tail}")).unwrap();
-    path
-}
-
 /// The fleet's per-vehicle results: `vehicles` vehicles at `clearance_mm` with a scrub radius
-/// of `scrub_m`, read with the profile's torque tables, or with `torque_table` alone.
+/// of `scrub_m` (none: the profile's chassis), read with the profile's torque tables, or with
+/// `torque_table` alone.
 fn fleet(
     name: &str,
-    scrub_m: f64,
+    scrub_m: Option<f64>,
     clearance_mm: f64,
     vehicles: usize,
     torque_table: Option<&str>,
 ) -> Vec<Value> {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("chassis_variants_{name}"));
-    let _ = std::fs::remove_dir_all(&dir);
+    let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("chassis_variants_{name}_plant"));
     std::fs::create_dir_all(&dir).unwrap();
-    let json = dir.join("fleet.json");
-    let plant = plant(&dir, scrub_m);
-    let mut a: Vec<String> = [
-        "fleet",
-        "--profile",
-        "shimmy_reference_eps",
-        "--plant",
-        plant.to_str().unwrap(),
-        "--config",
-        repo("config/observer.toml").to_str().unwrap(),
-        "--vehicles",
-        &vehicles.to_string(),
-        "--events",
-        "30",
-        "--seed-base",
-        "62000",
-        "--clearance-mm",
-        &clearance_mm.to_string(),
-        "--work-dir",
-        dir.to_str().unwrap(),
-        "--json",
-        json.to_str().unwrap(),
-    ]
-    .iter()
-    .map(|s| s.to_string())
-    .collect();
+    let plant = fleet_common::column_plant(&dir, scrub_m);
+    let mut extra = vec!["--plant".to_string(), plant.display().to_string()];
     if let Some(t) = torque_table {
-        a.push("--torque-table".into());
-        a.push(repo(t).display().to_string());
+        extra.push("--torque-table".into());
+        extra.push(fleet_common::repo(t).display().to_string());
     }
-    run(FleetArgs::parse_from(a)).unwrap();
-    let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    v["vehicles"].as_array().unwrap().clone()
+    fleet_common::fleet(
+        &format!("chassis_variants_{name}"),
+        "shimmy_reference_eps",
+        62000,
+        clearance_mm,
+        vehicles,
+        &extra,
+    )
 }
 
 const VARIANT: &str = "scrub radius 10 mm";
@@ -96,8 +54,8 @@ fn chosen(v: &Value) -> String {
 
 #[test]
 fn a_car_with_a_scrub_radius_is_read_with_its_variants_table_and_a_nominal_car_with_its_own() {
-    let scrub = fleet("scrub", 0.01, 0.085, 3, None);
-    let nominal = fleet("nominal", 0.0, 0.085, 3, None);
+    let scrub = fleet("scrub", Some(0.01), 0.085, 3, None);
+    let nominal = fleet("nominal", None, 0.085, 3, None);
     for v in &scrub {
         assert_eq!(chosen(v), VARIANT, "{v}");
         assert_eq!(v["signals"]["estimate_from"], "torque_nm", "{v}");
@@ -109,7 +67,7 @@ fn a_car_with_a_scrub_radius_is_read_with_its_variants_table_and_a_nominal_car_w
     // same cars' estimates sit further from the truth than with the variant's table.
     let alone = fleet(
         "scrub_nominal_only",
-        0.01,
+        Some(0.01),
         0.085,
         3,
         Some("config/vehicles/shimmy_reference_eps/table_torque.json"),

@@ -6,70 +6,23 @@
 //! a plant without the column (a steady 0 on the torque) must fall back to the angle; and
 //! `--angle-only` must leave the torque out.
 
-use std::path::PathBuf;
-
-use clap::Parser;
-use firmware_sim::fleet::{run, FleetArgs};
-use serde_json::Value;
-
-fn repo(rel: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
-        .join(rel)
-}
-
-/// config/vehicle/default.toml with its [column] enabled.
-fn column_plant(dir: &std::path::Path) -> PathBuf {
-    let text = std::fs::read_to_string(repo("config/vehicle/default.toml")).unwrap();
-    let (head, tail) = text.split_once("[column]").expect("a [column] section");
-    let tail = tail.replacen("enabled = false", "enabled = true", 1);
-    let path = dir.join("column.toml");
-    std::fs::write(&path, format!("{head}[column]{tail}")).unwrap();
-    path
-}
+mod fleet_common;
 
 /// The fleet's per-vehicle results for `vehicles` vehicles at `clearance_mm`.
-fn fleet(name: &str, clearance_mm: f64, vehicles: usize, extra: &[String]) -> Vec<Value> {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("torque_route_{name}"));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    let json = dir.join("fleet.json");
-    let mut a: Vec<String> = [
-        "fleet",
-        "--profile",
+fn fleet(
+    name: &str,
+    clearance_mm: f64,
+    vehicles: usize,
+    extra: &[String],
+) -> Vec<serde_json::Value> {
+    fleet_common::fleet(
+        &format!("torque_route_{name}"),
         "shimmy_reference_eps",
-        "--config",
-        repo("config/observer.toml").to_str().unwrap(),
-        "--vehicles",
-        &vehicles.to_string(),
-        "--events",
-        "30",
-        "--seed-base",
-        "61000",
-        "--clearance-mm",
-        &clearance_mm.to_string(),
-        "--work-dir",
-        dir.to_str().unwrap(),
-        "--json",
-        json.to_str().unwrap(),
-    ]
-    .iter()
-    .map(|s| s.to_string())
-    .collect();
-    a.extend(
-        extra
-            .iter()
-            .map(|s| s.replace("{dir}", dir.to_str().unwrap())),
-    );
-    if a.iter().any(|s| s == "{column}") {
-        let plant = column_plant(&dir);
-        for s in a.iter_mut().filter(|s| *s == "{column}") {
-            *s = plant.display().to_string();
-        }
-    }
-    run(FleetArgs::parse_from(a)).unwrap();
-    let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    v["vehicles"].as_array().unwrap().clone()
+        61000,
+        clearance_mm,
+        vehicles,
+        extra,
+    )
 }
 
 fn column() -> Vec<String> {

@@ -535,10 +535,10 @@ pub fn profile_copy(profile: &str, dir: &Path, name: &str) -> PathBuf {
         1,
     );
     // The torque tables: the profile's own and its chassis variants' (`torque_table = "…"`
-    // lines naming a file in the folder).
+    // lines with a path relative to the profile's folder).
     let torque_lines: Vec<String> = text
         .lines()
-        .filter(|l| l.starts_with("torque_table = \"") && !l.contains('/'))
+        .filter(|l| l.starts_with("torque_table = \"") && !l.starts_with("torque_table = \"/"))
         .map(str::to_string)
         .collect();
     for line in torque_lines {
