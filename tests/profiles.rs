@@ -57,6 +57,14 @@ fn every_shipped_profile_loads_and_its_mapping_fits_its_dbc() {
                 .expect("[sensors.steer_torque]");
             assert_eq!(tt.sensor.rate_hz, sent.rate_hz, "{name}");
             assert_eq!(tt.clearance_mm, t.clearance_mm, "{name}");
+            // Its chassis variants' tables load, each for the same torque sensor.
+            let alts = p
+                .load_torque_alternatives()
+                .unwrap_or_else(|e| panic!("{name}: {e:#}"));
+            assert_eq!(alts.len(), p.file.chassis.variants.len(), "{name}");
+            for a in &alts {
+                assert_eq!(a.table.sensor, tt.sensor, "{name}: {}", a.name);
+            }
         }
     }
 }
