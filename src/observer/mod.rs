@@ -531,7 +531,8 @@ impl Observer {
         };
         if table.sensor != ch.table.sensor {
             anyhow::bail!(
-                "torque table alternative `{name}`: built for another torque sensor ({:?}) than                  the nominal table ({:?})",
+                "torque table alternative `{name}`: built for another torque sensor ({:?}) than \
+                 the nominal table ({:?})",
                 table.sensor,
                 ch.table.sensor
             );
