@@ -59,7 +59,7 @@ fn every_shipped_profile_loads_and_its_mapping_fits_its_dbc() {
             assert_eq!(tt.clearance_mm, t.clearance_mm, "{name}");
             // Its chassis variants' tables load, each for the same torque sensor.
             let alts = p
-                .load_torque_alternatives()
+                .load_torque_alternatives(&tt)
                 .unwrap_or_else(|e| panic!("{name}: {e:#}"));
             assert_eq!(alts.len(), p.file.chassis.variants.len(), "{name}");
             for a in &alts {
@@ -172,12 +172,12 @@ fn rand_tag() -> u128 {
 #[test]
 fn chassis_variants_are_checked_against_their_own_chassis() {
     let p = Profile::load("shimmy_reference_eps").unwrap();
-    let alts = p.load_torque_alternatives().unwrap();
+    let nominal = p.load_torque_table().unwrap().unwrap();
+    let alts = p.load_torque_alternatives(&nominal).unwrap();
     assert_eq!(alts.len(), 1);
     let a = &alts[0];
     assert_eq!(a.name, "scrub radius 10 mm");
     assert_eq!(a.prior, profile::DEFAULT_VARIANT_PRIOR);
-    let nominal = p.load_torque_table().unwrap().unwrap();
     assert_eq!(a.table.sensor, nominal.sensor);
     assert_eq!(a.table.clearance_mm, nominal.clearance_mm);
     // The variant's table is not the profile's own chassis's.
@@ -188,7 +188,7 @@ fn chassis_variants_are_checked_against_their_own_chassis() {
         t.replace("scrub_radius_mm = 10.0", "scrub_radius_mm = 5.0")
     });
     let wp = Profile::load_dir(&wrong).unwrap();
-    let e = format!("{:#}", wp.load_torque_alternatives().unwrap_err());
+    let e = format!("{:#}", wp.load_torque_alternatives(&nominal).unwrap_err());
     assert!(e.contains("chassis variant `scrub radius 10 mm`"), "{e}");
 
     let greedy = profile_copy("shimmy_reference_eps", |t| {
@@ -223,8 +223,11 @@ fn chassis_variants_are_checked_against_their_own_chassis() {
 
     // Without variants the list is empty, and a profile whose mapping maps no torque has none.
     let plain = Profile::load("shimmy_reference").unwrap();
-    assert!(plain.load_torque_alternatives().unwrap().is_empty());
+    assert!(plain.load_torque_alternatives(&nominal).unwrap().is_empty());
     let mut no_torque = p.clone();
     no_torque.mapping.steer_torque = None;
-    assert!(no_torque.load_torque_alternatives().unwrap().is_empty());
+    assert!(no_torque
+        .load_torque_alternatives(&nominal)
+        .unwrap()
+        .is_empty());
 }

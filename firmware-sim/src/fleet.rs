@@ -974,7 +974,7 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
     }
     // The profile's chassis variants ride with its own torque table only.
     let torque_alternatives = match (&args.torque_table, &setup.profile, &torque) {
-        (None, Some(p), Some(_)) => p.load_torque_alternatives()?,
+        (None, Some(p), Some(t)) => p.load_torque_alternatives(t)?,
         _ => Vec::new(),
     };
     if !torque_alternatives.is_empty() {

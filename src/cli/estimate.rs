@@ -407,7 +407,7 @@ pub fn evaluate(args: &Args) -> anyhow::Result<(Option<Profile>, Estimation, Run
     };
     // The profile's chassis variants ride with its own torque table only.
     let torque_alternatives = match (&args.torque_table, &profile, &torque) {
-        (None, Some(prof), Some(_)) => prof.load_torque_alternatives()?,
+        (None, Some(prof), Some(t)) => prof.load_torque_alternatives(t)?,
         _ => Vec::new(),
     };
     let tables = crate::pipeline::Tables {

@@ -139,7 +139,7 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
     };
     let torque = profile.load_torque_table()?;
     let torque_alternatives = match &torque {
-        Some(_) => profile.load_torque_alternatives()?,
+        Some(t) => profile.load_torque_alternatives(t)?,
         None => Vec::new(),
     };
     let torque_table_sha256 = match (&torque, &profile.torque_table_path) {

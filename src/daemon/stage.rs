@@ -226,10 +226,10 @@ pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
     };
     // The profile's chassis variants ride with its own torque table, not with another one.
     let torque_alternatives = match (&torque, &cfg.vehicle.torque_table, &cfg.profile) {
-        (Some(_), Some(p), Some(profile))
+        (Some(t), Some(p), Some(profile))
             if is_profiles(profile.torque_table_path.as_deref(), p) =>
         {
-            profile.load_torque_alternatives()?
+            profile.load_torque_alternatives(t)?
         }
         _ => Vec::new(),
     };

@@ -514,13 +514,17 @@ impl Profile {
     }
 
     /// The torque tables of the profile's `[[chassis.variants]]`, by name, each checked as
-    /// [`Self::check_torque_table`] checks the nominal one but against its variant's chassis.
-    /// Empty when the profile has no variants or [`Self::load_torque_table`] gives no table
-    /// (nothing to choose beside). The profile's torque correction, fitted against the nominal
-    /// table, is applied to every variant's table too: its gains describe the car's signal
+    /// [`Self::check_torque_table`] checks the nominal one but against its variant's chassis,
+    /// to go beside `nominal`, the profile's torque table as [`Self::load_torque_table`] gave
+    /// it. Empty when the profile has no variants, names no torque table or maps no torque.
+    /// The correction `nominal` carries (the profile's, checked against the table it was
+    /// fitted on) is applied to every variant's table too: its gains describe the car's signal
     /// path (sensor scale, column transfer), which a scrub radius does not change, and the
     /// tables' evidence compares only on the same corrected features.
-    pub fn load_torque_alternatives(&self) -> anyhow::Result<Vec<crate::observer::Alternative>> {
+    pub fn load_torque_alternatives(
+        &self,
+        nominal: &ResponseTable,
+    ) -> anyhow::Result<Vec<crate::observer::Alternative>> {
         let variants = &self.file.chassis.variants;
         if variants.is_empty() || self.torque_table_path.is_none() {
             return Ok(Vec::new());
@@ -528,9 +532,6 @@ impl Profile {
         if self.mapping.steer_torque.is_none() {
             return Ok(Vec::new());
         }
-        // The nominal table as loaded carries the profile's torque correction, checked against
-        // the table it was fitted on.
-        let correction = self.load_torque_table()?.and_then(|t| t.correction);
         let mut out = Vec::with_capacity(variants.len());
         for v in variants {
             let path = self.dir.join(&v.torque_table);
@@ -545,7 +546,7 @@ impl Profile {
             let mut t = ResponseTable::load(&path).with_context(ctx)?;
             self.check_torque_table_on(&t, &self.variant_vehicle(v))
                 .with_context(ctx)?;
-            t.correction = correction.clone();
+            t.correction = nominal.correction.clone();
             out.push(crate::observer::Alternative {
                 name: v.name.clone(),
                 prior: v.prior_probability,
