@@ -281,11 +281,8 @@ pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
             .context("vehicle.baseline_logs")?,
         )
     };
-    let has_torque = torque.is_some();
-    let mut stage = ObserverStage::new(&cfg.settings, table)?.with_torque_table(torque)?;
-    if has_torque {
-        stage = stage.with_torque_alternatives(torque_alternatives)?;
-    }
+    let mut stage = ObserverStage::new(&cfg.settings, table)?
+        .with_torque_tables(torque, torque_alternatives)?;
     if let Some(b) = baseline {
         let used = stage.set_baseline(b);
         eprintln!(

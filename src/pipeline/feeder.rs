@@ -148,11 +148,8 @@ impl Offline {
             eprintln!("{tool}: mapping: {w}");
         }
         let rules = cfg.alerts.clone();
-        let has_torque = tables.torque.is_some();
-        let mut stage = ObserverStage::new(&cfg, tables.angle)?.with_torque_table(tables.torque)?;
-        if has_torque {
-            stage = stage.with_torque_alternatives(tables.torque_alternatives)?;
-        }
+        let stage = ObserverStage::new(&cfg, tables.angle)?
+            .with_torque_tables(tables.torque, tables.torque_alternatives)?;
         let monitor = Monitor::new(stage, rules);
         Ok(Offline {
             db,

@@ -459,23 +459,21 @@ impl ObserverStage {
         (angle, torque)
     }
 
-    /// Adds the torsion-bar torque's response table ([`Observer::with_torque_table`]).
-    pub fn with_torque_table(mut self, table: Option<ResponseTable>) -> anyhow::Result<Self> {
+    /// Adds the torsion-bar torque's response table ([`Observer::with_torque_table`]) and
+    /// the torque tables of structural alternatives of the chassis beside it
+    /// ([`Observer::with_torque_alternative`]); without a torque table the alternatives have
+    /// nothing to go beside and are not used ([`Tables::torque_alternatives`]).
+    pub fn with_torque_tables(
+        mut self,
+        table: Option<ResponseTable>,
+        alternatives: Vec<crate::observer::Alternative>,
+    ) -> anyhow::Result<Self> {
         if let Some(t) = table {
             self.obs = self.obs.with_torque_table(t).context("torque table")?;
             self.has_table = true;
-        }
-        Ok(self)
-    }
-
-    /// Adds torque tables of structural alternatives of the chassis
-    /// ([`Observer::with_torque_alternative`]); needs the torque table first.
-    pub fn with_torque_alternatives(
-        mut self,
-        alternatives: Vec<crate::observer::Alternative>,
-    ) -> anyhow::Result<Self> {
-        for a in alternatives {
-            self.obs = self.obs.with_torque_alternative(a)?;
+            for a in alternatives {
+                self.obs = self.obs.with_torque_alternative(a)?;
+            }
         }
         Ok(self)
     }
