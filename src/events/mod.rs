@@ -252,12 +252,14 @@ impl EventRecord {
 /// A finished event: its record and its steering samples `(t_ns, angle_rad)`, pre-roll first.
 /// `window` indexes the samples of `[t_start, t_end + tail]`. `torque` holds the steering
 /// torque samples `(t_ns, torque_nm)` over the same span (pre-roll first; empty when the bus
-/// carries no torque).
+/// carries no torque). `speed` holds the vehicle speed samples `(t_ns, speed_mps)` over the same
+/// span (pre-roll first): where the wheels were in their rotation, for a shake locked to it.
 pub struct Finished<'a> {
     pub record: EventRecord,
     pub samples: &'a [(i64, f64)],
     pub window: (usize, usize),
     pub torque: &'a [(i64, f64)],
+    pub speed: &'a [(i64, f64)],
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -280,6 +282,8 @@ pub struct Detector {
     /// Steering torque samples, kept over the same span as `steer` (its own ring: the torque
     /// comes in its own message at its own rate).
     torque: VecDeque<(i64, f64)>,
+    /// Vehicle speed samples over the same span as `steer` (its own ring, as the torque's).
+    speed: VecDeque<(i64, f64)>,
     decel: VecDeque<(i64, f64)>,
     scratch: Vec<f64>,
     speed_hist: heapless::Deque<(i64, f64), 64>,
@@ -327,6 +331,7 @@ impl Detector {
             state: State::Idle,
             steer: VecDeque::with_capacity(cap),
             torque: VecDeque::with_capacity(cap),
+            speed: VecDeque::with_capacity(cap),
             decel: VecDeque::with_capacity(cap),
             scratch: Vec::with_capacity(cap),
             speed_hist: heapless::Deque::new(),
@@ -377,6 +382,7 @@ impl Detector {
             // The previous event's samples were lent out; drop them now.
             self.steer.clear();
             self.torque.clear();
+            self.speed.clear();
             self.decel.clear();
         }
         self.update_kinematics(s);
@@ -401,6 +407,16 @@ impl Detector {
             }
             if self.torque.len() < self.torque.capacity() {
                 self.torque.push_back((s.t_ns, m));
+            }
+        }
+        if let Some(v) = s.speed_mps {
+            // As the torque's ring: the speed is sent no faster than the angle on the buses
+            // mapped.
+            if self.speed.len() == self.speed.capacity() && self.state == State::Idle {
+                self.speed.pop_front();
+            }
+            if self.speed.len() < self.speed.capacity() {
+                self.speed.push_back((s.t_ns, v));
             }
         }
         if s.steer_invalid && self.state != State::Idle {
@@ -446,6 +462,7 @@ impl Detector {
         if self.finished.take().is_some() {
             self.steer.clear();
             self.torque.clear();
+            self.speed.clear();
             self.decel.clear();
         }
         match self.state {
@@ -542,6 +559,13 @@ impl Detector {
         {
             self.torque.pop_front();
         }
+        while self
+            .speed
+            .front()
+            .is_some_and(|&(t, _)| now_ns - t > keep_ns)
+        {
+            self.speed.pop_front();
+        }
     }
 
     fn start(&mut self, t_ns: i64) {
@@ -587,6 +611,7 @@ impl Detector {
             self.ignored += 1;
             self.steer.clear();
             self.torque.clear();
+            self.speed.clear();
             self.decel.clear();
             return None;
         }
@@ -692,11 +717,13 @@ impl Detector {
         self.finished_window = (i0, i1);
         self.truncated = false;
         self.torque.make_contiguous();
+        self.speed.make_contiguous();
         Some(Finished {
             record,
             samples: self.steer.as_slices().0,
             window: (i0, i1),
             torque: self.torque.as_slices().0,
+            speed: self.speed.as_slices().0,
         })
     }
 }
