@@ -33,6 +33,10 @@ impl ObserverConfig {
             "events.max_decel_g",
             e.max_decel_g,
         )?;
+        self.features
+            .wheel_order
+            .validate()
+            .map_err(|e| anyhow::anyhow!("{pre}{e}"))?;
         let a = &self.alerts;
         positive("alerts.shimmy_deg", a.shimmy_deg)?;
         positive("alerts.shimmy_clear_deg", a.shimmy_clear_deg)?;

@@ -93,6 +93,11 @@ pub struct Features {
     /// holds less than [`CRUISE_MIN_S`] of usable samples.
     #[serde(default)]
     pub cruise_rms_deg: Option<f64>,
+    /// Share of the braking band's power in a line at the wheels' rotation beyond the one
+    /// before the brake (src/observer/wheel_order.rs); `None` where no vehicle speed was given
+    /// or the wheel order stayed out of the band.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wheel_order_share: Option<f64>,
 }
 
 /// The pre-brake ("cruise") window: it ends [`CRUISE_GUARD_S`] before the brake onset and spans
@@ -129,6 +134,18 @@ impl Default for SensorNoise {
 pub struct Extractor {
     filt: Option<(f64, Bandpass, f64)>,
     grid: Vec<f64>,
+    /// The last event's band-passed signal and its windows ([`Self::last_windowed`]).
+    last: Option<Last>,
+}
+
+/// What [`Extractor::last_windowed`] lends out.
+struct Last {
+    y: Vec<f64>,
+    t0_ns: i64,
+    period_ns: f64,
+    braking: (usize, usize),
+    cruise: (usize, usize),
+    band_hz: (f64, f64),
 }
 
 impl Default for Extractor {
@@ -142,6 +159,7 @@ impl Extractor {
         Extractor {
             filt: None,
             grid: Vec::with_capacity(4096),
+            last: None,
         }
     }
 
@@ -158,6 +176,20 @@ impl Extractor {
         }
         let (_, bp, e) = self.filt.as_ref().expect("set above");
         Ok((bp, *e))
+    }
+
+    /// The band-passed signal of the last event [`Self::extract_signal`] measured, on its
+    /// uniform grid, with its braking and cruise windows: what the wheel-order check
+    /// ([`super::wheel_order`]) reads. `None` before the first event or after one that failed.
+    pub fn last_windowed(&self) -> Option<super::wheel_order::Windowed<'_>> {
+        self.last.as_ref().map(|l| super::wheel_order::Windowed {
+            y: &l.y,
+            t0_ns: l.t0_ns,
+            period_ns: l.period_ns,
+            braking: l.braking,
+            cruise: l.cruise,
+            band_hz: l.band_hz,
+        })
     }
 
     /// Features of `samples` (`(t_ns, angle_rad)`, increasing time) over the window
@@ -194,6 +226,7 @@ impl Extractor {
         quant_step_deg: f64,
     ) -> Result<Features, AnalysisError> {
         let to_unit = signal.from_si();
+        self.last = None;
         if samples.len() < 8 {
             return Err(AnalysisError::TooShort(format!(
                 "{} steering samples, need 8",
@@ -257,6 +290,15 @@ impl Extractor {
         };
         let noise_var = (q * q / 12.0 + noise.noise_deg * noise.noise_deg) * enbw;
         let excess = (rms * rms - noise_var).max(0.0).sqrt();
+        let band_hz = band_hz(fs_hz);
+        self.last = Some(Last {
+            y,
+            t0_ns: samples[0].0,
+            period_ns: fit.period_ns,
+            braking: (i0, i1),
+            cruise: (c0, c1),
+            band_hz,
+        });
         Ok(Features {
             peak_deg: peak,
             rms_deg: rms,
@@ -265,6 +307,7 @@ impl Extractor {
             n: (i1 - i0) as u32,
             fs_hz,
             cruise_rms_deg,
+            wheel_order_share: None,
         })
     }
 }

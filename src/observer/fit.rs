@@ -29,12 +29,21 @@ pub struct ModelFit {
     /// Wilson–Hilferty normal score of `deviance` under χ²(`dof`).
     pub z: f64,
     /// False when `z` exceeds the configured limit with at least [`MIN_DOF`] degrees of
-    /// freedom, or when the estimate's sensor is noisier than its table assumes.
+    /// freedom, when the estimate's sensor is noisier than its table assumes, or when the
+    /// steering shakes at wheel order while braking ([`Self::wheel_order_shake`]).
     pub fits: bool,
     /// The estimate's steering sensor measured noisier at standstill than its table assumes
     /// (src/observer/noise_floor.rs): the table does not describe this vehicle's sensor.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub sensor_noisier: bool,
+    /// Median share of the braking band's power locked to the wheels' rotation beyond the
+    /// cruise's (src/observer/wheel_order.rs), once enough events have one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub wheel_order_share: Option<f64>,
+    /// That share is above its limit: a shake at wheel order while braking (a disc thickness
+    /// variation) the model does not have.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub wheel_order_shake: bool,
     /// ln of the events' marginal likelihood under the table's model (clearance prior and
     /// nuisances integrated out), with the evidence power: what a fleet-level fit of a
     /// per-car-model correction adds up over vehicles (`shimmy fleet-gain`).
@@ -56,6 +65,8 @@ impl ModelFit {
             z,
             fits: !(dof >= MIN_DOF && z > z_max),
             sensor_noisier: false,
+            wheel_order_share: None,
+            wheel_order_shake: false,
             ln_evidence: None,
             ln_evidence_untempered: None,
         }
@@ -68,6 +79,16 @@ impl ModelFit {
     pub fn set_sensor_noisier(&mut self, noisier: bool) {
         self.sensor_noisier = noisier;
         if noisier {
+            self.fits = false;
+        }
+    }
+
+    /// Records the vehicle's median wheel-order share and whether it is past its limit: the
+    /// model then does not fit, whatever the deviance says.
+    pub fn set_wheel_order(&mut self, share: Option<f64>, shake: bool) {
+        self.wheel_order_share = share;
+        self.wheel_order_shake = shake;
+        if shake {
             self.fits = false;
         }
     }

@@ -34,6 +34,7 @@ pub mod rejections;
 pub mod sensor;
 pub mod simulate;
 pub mod table;
+pub mod wheel_order;
 
 use std::path::Path;
 
@@ -68,6 +69,9 @@ pub struct FeatureConfig {
     /// the features assume makes "the model does not fit" (src/observer/noise_floor.rs); 0
     /// turns the check off.
     pub noise_floor_ratio: f64,
+    /// The check for a shake locked to the wheels' rotation while braking (a disc thickness
+    /// variation: src/observer/wheel_order.rs).
+    pub wheel_order: wheel_order::WheelOrderConfig,
 }
 
 impl Default for FeatureConfig {
@@ -76,6 +80,7 @@ impl Default for FeatureConfig {
             sensor: SensorNoise::default(),
             crest_factor: 2.2,
             noise_floor_ratio: 1.5,
+            wheel_order: wheel_order::WheelOrderConfig::default(),
         }
     }
 }
@@ -154,6 +159,10 @@ pub struct EventOut {
     /// RMS of the band-passed steering-wheel angle before the brake onset (deg; null when the
     /// pre-roll was too short), see `features`.
     pub cruise_rms_sw_bp_deg: Option<f64>,
+    /// Share of the braking band's power in a line at the wheels' rotation, beyond the one
+    /// before the brake (src/observer/wheel_order.rs); null without a speed or when the wheel
+    /// order stayed out of the band.
+    pub wheel_order_share: Option<f64>,
     /// Estimated true steering-wheel amplitude (deg), noise- and quantisation-corrected.
     pub sw_amplitude_deg: Option<f64>,
     pub duration_s: f64,
@@ -174,6 +183,8 @@ pub struct TorqueEventOut {
     pub rms_bp_nm: Option<f64>,
     pub peak_bp_nm: Option<f64>,
     pub cruise_rms_bp_nm: Option<f64>,
+    /// As [`EventOut::wheel_order_share`], of the torque.
+    pub wheel_order_share: Option<f64>,
     pub sample_hz: Option<f64>,
     pub used: bool,
     /// Why not used: `"no_torque"` (none on the bus in the window, or a constant one),
@@ -318,7 +329,13 @@ pub struct Observer {
     torque: Option<TorqueChannel>,
     /// The steering sensors' noise measured at standstill ([`noise_floor`]).
     noise_floor: noise_floor::NoiseFloor,
+    /// The wheel-order shares ([`wheel_order`]) of the events each estimator took: the
+    /// angle's (0) and the torque's (1), the newest `features.wheel_order.window_events`.
+    wheel_order: [std::collections::VecDeque<f64>; 2],
 }
+
+/// Largest `features.wheel_order.window_events`.
+pub const MAX_WHEEL_ORDER_KEPT: usize = 2000;
 
 /// The second steering channel: the torsion-bar torque's response table and its own
 /// estimator. Its evidence is kept apart from the angle's (each estimator is consistent with
@@ -482,6 +499,7 @@ impl Observer {
             feeds_estimator: true,
             torque: None,
             noise_floor: noise_floor::NoiseFloor::default(),
+            wheel_order: Default::default(),
             cfg,
         })
     }
@@ -612,8 +630,33 @@ impl Observer {
         Some((self.estimator.as_mut()?, self.table.as_ref()?))
     }
 
+    /// Notes the wheel-order share ([`wheel_order`]) of an event the caller fed to the
+    /// estimator of `signal` ([`Self::new_caller_fed`]), for the fit check.
+    pub fn note_wheel_order(&mut self, signal: features::SteerSignal, share: f64) {
+        let keep = self
+            .cfg
+            .features
+            .wheel_order
+            .window_events
+            .clamp(1, MAX_WHEEL_ORDER_KEPT);
+        let w = &mut self.wheel_order[usize::from(!signal.is_angle())];
+        while w.len() >= keep {
+            w.pop_front();
+        }
+        w.push_back(share);
+    }
+
+    /// The median wheel-order share of the events `signal`'s estimator took, once there are
+    /// enough ([`wheel_order::median_share`]).
+    pub fn wheel_order_share(&self, signal: features::SteerSignal) -> Option<f64> {
+        let w = &self.wheel_order[usize::from(!signal.is_angle())];
+        let v: Vec<f64> = w.iter().copied().collect();
+        wheel_order::median_share(&v, &self.cfg.features.wheel_order)
+    }
+
     /// Replaces the estimator with a fresh one (no evidence). No-op without a response table.
     pub fn reset_estimator(&mut self) -> anyhow::Result<()> {
+        self.wheel_order.iter_mut().for_each(|w| w.clear());
         if let Some(t) = self.table.as_ref() {
             self.estimator = Some(Estimator::new(t, self.cfg.estimator.clone())?);
         }
@@ -678,41 +721,61 @@ impl Observer {
         let noisy = measured
             .iter()
             .find(|n| n.above_assumed && n.signal == active_signal);
+        let wo_cfg = &self.cfg.features.wheel_order;
+        let wheel_order = self.wheel_order_share(active_signal);
+        let judder = wheel_order.filter(|&m| wo_cfg.share_max > 0.0 && m > wo_cfg.share_max);
         let Some(f) = self.active_estimator().and_then(|e| {
             let (dev, dof) = e.fit()?;
             let mut f = fit::ModelFit::new(dev, dof, z_max);
             f.set_sensor_noisier(noisy.is_some());
+            f.set_wheel_order(wheel_order, judder.is_some());
             f.ln_evidence = e.ln_evidence().map(|l| l[0]);
             f.ln_evidence_untempered = e.ln_evidence().map(|l| l[1]);
             Some(f)
         }) else {
             return (None, None);
         };
-        let why =
-            match noisy {
-                _ if f.fits => None,
-                Some(n) => {
-                    Some(format!(
+        let why = match noisy {
+            _ if f.fits => None,
+            Some(n) => Some(format!(
                 "its steering {} sensor is noisier than the response table assumes ({:.3} {u} \
                  RMS measured at standstill over {} stops, {:.3} {u} assumed), so the interval \
                  is not to be trusted; rebuild the table for this sensor (`shimmy calibrate{} \
                  --sensor-noise-deg {:.3}`, see docs/ACCURACY.md)",
-                if n.signal.is_angle() { "angle" } else { "torque" },
+                if n.signal.is_angle() {
+                    "angle"
+                } else {
+                    "torque"
+                },
                 n.measured_rms,
                 n.stops,
                 n.assumed_rms,
-                if n.signal.is_angle() { "" } else { " --signal torque" },
+                if n.signal.is_angle() {
+                    ""
+                } else {
+                    " --signal torque"
+                },
                 n.measured_rms,
                 u = n.signal.unit()
-            ))
-                }
-                None => Some(format!(
-                    "its events scatter more about every clearance's prediction than the response \
+            )),
+            None if judder.is_some() => Some(format!(
+                "its steering shakes at the wheels' rotation while braking, beyond what it does \
+                     before the brake ({:.0} % of the braking band's power in that line, median \
+                     over {} events; limit {:.0} %): a brake-torque variation (disc thickness \
+                     variation, brake judder) shakes the steering whatever the joints, so the \
+                     interval is not to be trusted; check the front brake discs' thickness \
+                     variation and run-out first (docs/ACCURACY.md, \"A brake-torque variation\")",
+                100.0 * judder.unwrap_or(0.0),
+                self.wheel_order[usize::from(!active_signal.is_angle())].len(),
+                100.0 * wo_cfg.share_max
+            )),
+            None => Some(format!(
+                "its events scatter more about every clearance's prediction than the response \
                  table's vehicles do (goodness of fit z = {:.1} over {:.0} features, limit \
                  {z_max:.1}), so the interval is not to be trusted; see docs/ACCURACY.md",
-                    f.z, f.dof
-                )),
-            };
+                f.z, f.dof
+            )),
+        };
         (Some(f), why)
     }
 
@@ -797,7 +860,7 @@ impl Observer {
         let rec = &fin.record;
         let t0 = (rec.t_start_s * 1e9).round() as i64;
         let t1 = ((rec.t_end_s + cfg.events.tail_s) * 1e9).round() as i64;
-        extractor
+        let f = extractor
             .extract_signal(
                 features::SteerSignal::TorqueNm,
                 tq,
@@ -806,7 +869,13 @@ impl Observer {
                 noise,
                 noise.quant_step_deg,
             )
-            .ok()
+            .ok()?;
+        Some(Features {
+            wheel_order_share: extractor
+                .last_windowed()
+                .and_then(|w| wheel_order::share(&w, fin.speed, &cfg.features.wheel_order)),
+            ..f
+        })
     }
 
     /// Keeps the application the detector just ignored, if it ignored one.
@@ -874,7 +943,13 @@ impl Observer {
                 cfg.features.sensor,
                 rec.quality.quant_step_deg,
             )
-            .ok();
+            .ok()
+            .map(|f| Features {
+                wheel_order_share: extractor
+                    .last_windowed()
+                    .and_then(|w| wheel_order::share(&w, fin.speed, &cfg.features.wheel_order)),
+                ..f
+            });
         (rec, feats)
     }
 
@@ -926,6 +1001,9 @@ impl Observer {
             self.table.as_ref(),
         ) {
             feed_event(est, t, f, &rec);
+            if let Some(x) = f.wheel_order_share {
+                self.note_wheel_order(features::SteerSignal::AngleDeg, x);
+            }
         }
         let out = EventOut {
             t_start: rec.t_start_s,
@@ -937,6 +1015,7 @@ impl Observer {
             unused_reason: reason,
             rms_sw_bp_deg: feats.map(|f| f.rms_deg),
             cruise_rms_sw_bp_deg: feats.and_then(|f| f.cruise_rms_deg),
+            wheel_order_share: feats.and_then(|f| f.wheel_order_share),
             sw_amplitude_deg: amp,
             duration_s: rec.duration_s(),
             sample_hz: rec.quality.sample_hz,
@@ -980,11 +1059,15 @@ impl Observer {
             for a in &mut ch.alternatives {
                 feed_event(&mut a.estimator, &a.table, f, rec);
             }
+            if let Some(x) = f.wheel_order_share {
+                self.note_wheel_order(features::SteerSignal::TorqueNm, x);
+            }
         }
         TorqueEventOut {
             rms_bp_nm: tf.map(|f| f.rms_deg),
             peak_bp_nm: tf.map(|f| f.peak_deg),
             cruise_rms_bp_nm: tf.and_then(|f| f.cruise_rms_deg),
+            wheel_order_share: tf.and_then(|f| f.wheel_order_share),
             sample_hz: tf.map(|f| f.fs_hz),
             used,
             unused_reason: reason,

@@ -76,6 +76,10 @@ pub struct Evidence {
     /// Pre-brake cruise RMS (deg), when measured (absent in states written before it existed).
     #[serde(default)]
     pub cruise_rms_deg: Option<f64>,
+    /// The angle's wheel-order share (src/observer/wheel_order.rs), when measured (absent in
+    /// states written before it existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wheel_order_share: Option<f64>,
     pub v0_kmh: f64,
     pub decel_g: f64,
     /// Daemon odometer when the event finished (m).
@@ -98,6 +102,9 @@ pub struct TorqueEvidence {
     pub peak: f64,
     #[serde(default)]
     pub cruise_rms: Option<f64>,
+    /// The torque's wheel-order share, when measured.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wheel_order_share: Option<f64>,
 }
 
 /// What [`ObserverStage`] saves in the daemon's state.
@@ -498,6 +505,7 @@ impl ObserverStage {
                     rms,
                     peak,
                     cruise_rms: t.cruise_rms_bp_nm,
+                    wheel_order_share: t.wheel_order_share,
                 }),
                 _ => None,
             });
@@ -513,6 +521,7 @@ impl ObserverStage {
                 rms_deg,
                 peak_deg,
                 cruise_rms_deg: e.cruise_rms_sw_bp_deg,
+                wheel_order_share: angle.and(e.wheel_order_share),
                 v0_kmh: e.v0_kmh,
                 decel_g: e.decel_g,
                 // The daemon's odometer at the brake onset, as the observer's own estimator
@@ -535,7 +544,7 @@ impl ObserverStage {
         if !self.has_table {
             return;
         }
-        self.route(ev, |est, table, rms, peak, cruise| {
+        let (angle, torque) = self.route(ev, |est, table, rms, peak, cruise| {
             est.update_event(
                 table,
                 rms,
@@ -547,6 +556,13 @@ impl ObserverStage {
             );
             true
         });
+        use crate::observer::features::SteerSignal;
+        if let (true, Some(x)) = (angle, ev.wheel_order_share) {
+            self.obs.note_wheel_order(SteerSignal::AngleDeg, x);
+        }
+        if let (true, Some(x)) = (torque, ev.torque_nm.and_then(|t| t.wheel_order_share)) {
+            self.obs.note_wheel_order(SteerSignal::TorqueNm, x);
+        }
         if self.evidence.len() >= MAX_EVIDENCE {
             self.evidence.pop_front();
             self.evidence_dropped += 1;
@@ -694,6 +710,7 @@ mod tests {
             rms_deg: 0.09 * k,
             peak_deg: 0.24 * k,
             cruise_rms_deg: Some(0.035 * k),
+            wheel_order_share: None,
             v0_kmh: 35.0 + (i * 13 % 60) as f64,
             decel_g: 0.3 + 0.5 * ((i * 5 % 9) as f64 / 8.0),
             odometer_m: 1000.0 * i as f64,
@@ -735,6 +752,59 @@ mod tests {
         let mut r2 = ObserverStage::new(&cfg, Some(reference_table())).unwrap();
         r2.restore(&old).unwrap();
         assert_eq!(r2.estimate().unwrap(), e_plain);
+    }
+
+    /// The wheel-order shares of the events fed are saved with their evidence and replayed:
+    /// a vehicle whose steering shook at wheel order while braking is still said not to fit
+    /// after a restart, repaired discs clear it within the window, and a joint replacement
+    /// forgets them with the old evidence.
+    #[test]
+    fn the_wheel_order_check_survives_a_restore_and_a_joint_replacement_resets_it() {
+        let cfg = ObserverConfig::default();
+        let limit = cfg.features.wheel_order.share_max;
+        let mut st = ObserverStage::new(&cfg, Some(reference_table())).unwrap();
+        let n = cfg.features.wheel_order.min_events;
+        for i in 0..n {
+            let share = if i + 1 == n { None } else { Some(limit + 0.2) };
+            st.apply(&Evidence {
+                wheel_order_share: share,
+                ..evidence(i, 1.0)
+            });
+        }
+        let fit = |st: &ObserverStage| st.observer().fit_check();
+        // One event short of the count: nothing said yet.
+        assert_eq!(fit(&st).0.unwrap().wheel_order_share, None);
+        st.apply(&Evidence {
+            wheel_order_share: Some(limit + 0.2),
+            ..evidence(n, 1.0)
+        });
+        let (f, why) = fit(&st);
+        let f = f.unwrap();
+        assert!(f.wheel_order_shake && !f.fits, "{f:?}");
+        assert!(why.unwrap().contains("brake discs"));
+        let saved = st.save().unwrap();
+        let mut r = ObserverStage::new(&cfg, Some(reference_table())).unwrap();
+        r.restore(&saved).unwrap();
+        assert_eq!(fit(&r).0.unwrap().wheel_order_share, f.wheel_order_share);
+        assert!(!fit(&r).0.unwrap().fits);
+        // Discs repaired: the newest `window_events` brakings decide.
+        let mut fixed = ObserverStage::new(&cfg, Some(reference_table())).unwrap();
+        fixed.restore(&saved).unwrap();
+        for i in 0..cfg.features.wheel_order.window_events {
+            fixed.apply(&Evidence {
+                wheel_order_share: Some(0.05),
+                ..evidence(40 + i, 1.0)
+            });
+        }
+        let f2 = fit(&fixed).0.unwrap();
+        assert!(
+            !f2.wheel_order_shake && f2.wheel_order_share == Some(0.05),
+            "{f2:?}"
+        );
+        r.joints_replaced(0.03, 1).unwrap();
+        r.collect(evidence(30, 0.6));
+        r.apply(&evidence(31, 0.6));
+        assert_eq!(fit(&r).0.and_then(|f| f.wheel_order_share), None);
     }
 
     /// A joint replacement forgets the old joints' evidence and baseline, collects the next
