@@ -361,6 +361,8 @@ pub struct VehicleResult {
     pub p_wheel_phase_fixed: Option<f64>,
     /// The estimator's goodness-of-fit check (src/observer/fit.rs).
     pub model_fit: Option<shimmy::observer::fit::ModelFit>,
+    /// The report's verdict: the estimate in words, and why the model does not fit when not.
+    pub verdict: String,
     pub shimmy_alert: bool,
     /// Mean true steering-wheel amplitude of events starting at 50–60 km/h (deg).
     pub true_sw_55_deg: Option<f64>,
@@ -782,6 +784,7 @@ fn result(
         p_clearance_above_threshold: r.p_clearance_above_threshold,
         p_wheel_phase_fixed: r.p_wheel_phase_fixed,
         model_fit: r.model_fit,
+        verdict: r.verdict.clone(),
         shimmy_alert: r.alerts.iter().any(|a| a.kind == Kind::Shimmy55),
         events_55: amps.len(),
         true_sw_55_deg: if amps.is_empty() {
@@ -1490,6 +1493,7 @@ mod tests {
             p_clearance_above_threshold: Some(0.99),
             p_wheel_phase_fixed: None,
             model_fit: None,
+            verdict: String::new(),
             shimmy_alert: alert,
             events_55: n55,
             true_sw_55_deg: Some(amp),
@@ -1533,6 +1537,7 @@ mod tests {
             p_clearance_above_threshold: None,
             p_wheel_phase_fixed: None,
             model_fit: None,
+            verdict: String::new(),
             shimmy_alert: false,
             events_55: 0,
             true_sw_55_deg: None,

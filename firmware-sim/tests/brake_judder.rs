@@ -1,0 +1,77 @@
+//! The wheel-order check, end to end (src/observer/wheel_order.rs): firmware-sim drives RAV4s
+//! with the MODEL.md §15 column and a 10 mm kingpin scrub radius, some with a brake-torque
+//! variation at wheel order (a disc thickness variation, MODEL.md §14), and `shimmy
+//! estimate`'s chain reads their logs on the toyota_rav4 profile. A car whose discs vary must
+//! be told not to fit the model, with the brake discs named; the same car with even discs must
+//! not.
+
+mod fleet_common;
+
+use serde_json::Value;
+
+/// `vehicles` cars at `clearance_mm`, a 10 mm scrub radius, and a brake-torque variation of
+/// `variation` on both discs, 180° apart (0: even discs).
+fn fleet(name: &str, variation: f64, clearance_mm: f64, vehicles: usize) -> Vec<Value> {
+    let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("brake_judder_{name}_plant"));
+    std::fs::create_dir_all(&dir).unwrap();
+    let plant = fleet_common::column_plant(&dir, Some(0.01));
+    let text = std::fs::read_to_string(&plant).unwrap();
+    let text = text
+        .replacen(
+            "torque_variation_rel = [0.0, 0.0]",
+            &format!("torque_variation_rel = [{variation}, {variation}]"),
+            1,
+        )
+        .replacen(
+            "torque_variation_phase_deg = [0.0, 0.0]",
+            "torque_variation_phase_deg = [0.0, 180.0]",
+            1,
+        );
+    assert!(
+        text.contains("[0.0, 180.0]"),
+        "no torque_variation_phase_deg"
+    );
+    std::fs::write(&plant, text).unwrap();
+    fleet_common::fleet(
+        &format!("brake_judder_{name}"),
+        "toyota_rav4",
+        64000,
+        clearance_mm,
+        vehicles,
+        &["--plant".to_string(), plant.display().to_string()],
+    )
+}
+
+fn share(v: &Value) -> f64 {
+    v["model_fit"]["wheel_order_share"]
+        .as_f64()
+        .unwrap_or_else(|| panic!("no wheel_order_share: {v}"))
+}
+
+#[test]
+fn a_car_whose_brake_discs_vary_is_told_to_check_them_and_the_same_car_with_even_discs_is_not() {
+    let judder = fleet("uneven", 0.04, 0.05, 2);
+    let even = fleet("even", 0.0, 0.05, 2);
+    for (j, e) in judder.iter().zip(&even) {
+        assert_eq!(j["signals"]["estimate_from"], "torque_nm", "{j}");
+        assert_eq!(j["model_fit"]["wheel_order_shake"], true, "{j}");
+        assert_eq!(j["model_fit"]["fits"], false, "{j}");
+        let verdict = j["verdict"].as_str().unwrap();
+        assert!(
+            verdict.contains("brake discs"),
+            "the verdict does not name the discs: {j}"
+        );
+        assert!(
+            !e["verdict"].as_str().unwrap().contains("brake discs"),
+            "{e}"
+        );
+        assert!(e["model_fit"].get("wheel_order_shake").is_none(), "{e}");
+        assert!(
+            share(j) > share(e) + 0.2,
+            "uneven discs {} vs even {}",
+            share(j),
+            share(e)
+        );
+    }
+}
