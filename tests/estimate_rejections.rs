@@ -152,3 +152,38 @@ fn shimmyd_logs_and_journals_the_rejections() {
         "{stop}"
     );
 }
+
+/// A file that is not a CAN log at all (text of another kind) is an error naming the file and
+/// what it is not, rather than an estimate that found no braking.
+#[test]
+fn a_file_that_is_not_a_can_log_is_an_error_not_an_empty_estimate() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("speeds.csv");
+    std::fs::write(&csv, "t,speed_kmh\n0.0,50.0\n0.1,49.5\n").unwrap();
+    let err = estimate_files(
+        &repo(MAPPING),
+        Some(&dbc()),
+        None,
+        ObserverConfig::default(),
+        &[repo(DEMO), csv.clone()],
+    )
+    .map(|_| ())
+    .unwrap_err();
+    let msg = format!("{err:#}");
+    assert!(msg.contains("speeds.csv"), "{msg}");
+    assert!(
+        msg.contains("not a candump -L, Vector ASC, BLF or MF4 log"),
+        "{msg}"
+    );
+    // An empty log is no error: nothing in it to misread.
+    let empty = dir.path().join("empty.log");
+    std::fs::write(&empty, "").unwrap();
+    estimate_files(
+        &repo(MAPPING),
+        Some(&dbc()),
+        None,
+        ObserverConfig::default(),
+        &[empty],
+    )
+    .unwrap();
+}

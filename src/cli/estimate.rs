@@ -283,6 +283,14 @@ fn feed_logs(off: &mut Offline, logs: &[PathBuf], what: &str, tool: &str) -> any
         for s in src.take_skips() {
             eprintln!("{tool}: skipped {}: {}", s.location, s.reason);
         }
+        let st = crate::source::CanSource::stats(&src);
+        anyhow::ensure!(
+            st.frames > 0 || st.malformed == 0,
+            "{what} {}: no CAN frame read and {} line(s) or record(s) not understood: it is not \
+             a candump -L, Vector ASC, BLF or MF4 log (the reader's first complaints are above)",
+            log.display(),
+            st.malformed
+        );
     }
     off.monitor.finish();
     Ok(())
