@@ -132,29 +132,19 @@ pub fn share(w: &Windowed<'_>, speed: &[(i64, f64)], cfg: &WheelOrderConfig) -> 
     // Braking part: grid points whose speed puts the wheel order well inside the band.
     let (b0, b1) = (w.braking.0, w.braking.1.min(w.y.len()));
     let (c0, c1) = (w.cruise.0, w.cruise.1.min(w.y.len()));
-    let n_b = count_inside(w, speed, b0, b1, v_lo, v_hi);
+    let (n_b, power) = inside_power(w, speed, (b0, b1), (v_lo, v_hi));
     if (n_b as f64) * dt < MIN_BRAKING_S {
         return None;
     }
-    let a_b = order_amplitude(w, speed, b0, b1, v_lo, v_hi, cfg)?;
-    let rms2 = {
-        let mut s = 0.0;
-        let mut it = SpeedAt::new(speed);
-        for i in b0..b1 {
-            let v = it.at(w.t0_ns + (i as f64 * w.period_ns) as i64)?;
-            if v > v_lo && v < v_hi {
-                s += w.y[i] * w.y[i];
-            }
-        }
-        s / n_b as f64
-    };
+    let a_b = order_amplitude(w, speed, (b0, b1), (v_lo, v_hi), cfg)?;
+    let rms2 = power / n_b as f64;
     if rms2 <= 0.0 {
         return None;
     }
     // Before the brake the speed is steady; a cruise window the speed does not reach counts as
     // no cruise line (A_c = 0).
     let a_c = if c1 > c0 + 4 {
-        order_amplitude(w, speed, c0, c1, v_lo, v_hi, cfg).unwrap_or(0.0)
+        order_amplitude(w, speed, (c0, c1), (v_lo, v_hi), cfg).unwrap_or(0.0)
     } else {
         0.0
     };
@@ -192,21 +182,21 @@ impl<'a> SpeedAt<'a> {
     }
 }
 
-fn count_inside(
+/// How many grid points of `[i0, i1)` have a speed in `(v_lo, v_hi)`, and their summed
+/// squared signal.
+fn inside_power(
     w: &Windowed<'_>,
     speed: &[(i64, f64)],
-    i0: usize,
-    i1: usize,
-    v_lo: f64,
-    v_hi: f64,
-) -> usize {
+    (i0, i1): (usize, usize),
+    (v_lo, v_hi): (f64, f64),
+) -> (usize, f64) {
     let mut it = SpeedAt::new(speed);
     (i0..i1)
         .filter(|&i| {
             it.at(w.t0_ns + (i as f64 * w.period_ns) as i64)
                 .is_some_and(|v| v > v_lo && v < v_hi)
         })
-        .count()
+        .fold((0, 0.0), |(n, p), i| (n + 1, p + w.y[i] * w.y[i]))
 }
 
 /// Largest order-tracked amplitude over the order search, on the grid points of `[i0, i1)`
@@ -214,10 +204,8 @@ fn count_inside(
 fn order_amplitude(
     w: &Windowed<'_>,
     speed: &[(i64, f64)],
-    i0: usize,
-    i1: usize,
-    v_lo: f64,
-    v_hi: f64,
+    (i0, i1): (usize, usize),
+    (v_lo, v_hi): (f64, f64),
     cfg: &WheelOrderConfig,
 ) -> Option<f64> {
     let dt = w.period_ns * 1e-9;
