@@ -2,8 +2,9 @@
 //! with the MODEL.md §15 column and a 10 mm kingpin scrub radius, some with a brake-torque
 //! variation at wheel order (a disc thickness variation, MODEL.md §14), and `shimmy
 //! estimate`'s chain reads their logs on the toyota_rav4 profile. A car whose discs vary must
-//! be told not to fit the model, with the brake discs named; the same car with even discs must
-//! not.
+//! be told not to fit the model, with the brake discs named, and its workshop report
+//! (`shimmy report` on its log) must send the mechanic to the discs; the same car with even
+//! discs must not.
 
 mod fleet_common;
 
@@ -43,6 +44,32 @@ fn fleet(name: &str, variation: f64, clearance_mm: f64, vehicles: usize) -> Vec<
     )
 }
 
+/// `shimmy report --profile toyota_rav4 --format json` on vehicle `seed`'s log of fleet `name`.
+fn workshop_report(name: &str, seed: u64) -> Value {
+    use clap::Parser;
+    #[derive(Parser)]
+    struct Report {
+        #[command(flatten)]
+        args: shimmy::cli::report::Args,
+    }
+    let dir =
+        std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("brake_judder_{name}"));
+    let out = dir.join(format!("report_{seed}.json"));
+    let log = dir.join(format!("fleet_{seed}.log"));
+    let r = Report::parse_from([
+        "report",
+        "--profile",
+        "toyota_rav4",
+        "--format",
+        "json",
+        "--out",
+        out.to_str().unwrap(),
+        log.to_str().unwrap(),
+    ]);
+    shimmy::cli::report::run(r.args).unwrap();
+    serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap()
+}
+
 fn share(v: &Value) -> f64 {
     v["model_fit"]["wheel_order_share"]
         .as_f64()
@@ -74,4 +101,16 @@ fn a_car_whose_brake_discs_vary_is_told_to_check_them_and_the_same_car_with_even
             share(e)
         );
     }
+    let j = workshop_report("uneven", judder[0]["seed"].as_u64().unwrap());
+    let headline = j["verdict"]["headline"].as_str().unwrap();
+    assert!(headline.contains("brake discs"), "{}", j["verdict"]);
+    let e = workshop_report("even", even[0]["seed"].as_u64().unwrap());
+    assert!(
+        !e["verdict"]["headline"]
+            .as_str()
+            .unwrap()
+            .contains("brake discs"),
+        "{}",
+        e["verdict"]
+    );
 }

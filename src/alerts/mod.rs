@@ -436,6 +436,7 @@ mod tests {
             events_used: 7,
             misfit: None,
             chassis_variant: None,
+            wheel_order_shake: false,
         };
         // Just below the raise probability: nothing.
         let below = cfg.clearance_probability - 0.01;

@@ -71,6 +71,11 @@ pub struct Estimate {
     /// its table.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub chassis_variant: Option<String>,
+    /// The model does not fit because the steering shakes at the wheels' rotation while
+    /// braking (src/observer/wheel_order.rs): a brake disc thickness variation, to be checked
+    /// before the joints are judged.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub wheel_order_shake: bool,
 }
 
 /// [`EventStage::rejections`]: the counts and their explanation (counts, then the likely cause).

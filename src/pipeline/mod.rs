@@ -353,6 +353,7 @@ mod tests {
                 events_used: self.done as u32,
                 misfit: None,
                 chassis_variant: None,
+                wheel_order_shake: false,
             })
         }
     }

@@ -648,6 +648,11 @@ impl EventStage for ObserverStage {
         let est = self.obs.active_estimator()?;
         let s = est.summary();
         let used = s.events_used > 0;
+        let fit = if used {
+            self.obs.fit_check()
+        } else {
+            (None, None)
+        };
         Some(Estimate {
             clearance_mm: (used && s.detectable).then_some(s.median_mm),
             interval_mm: used.then_some([s.q05_mm, s.q95_mm]),
@@ -655,8 +660,9 @@ impl EventStage for ObserverStage {
             below_mm: (used && !s.detectable).then_some(s.below_mm),
             p_above: used.then(|| est.prob_above(self.clearance_mm)),
             events_used: s.events_used,
-            misfit: used.then(|| self.obs.fit_check().1).flatten(),
+            misfit: fit.1.filter(|_| used),
             chassis_variant: used.then(|| self.obs.chassis_variant()).flatten(),
+            wheel_order_shake: used && fit.0.is_some_and(|f| f.wheel_order_shake),
         })
     }
 }

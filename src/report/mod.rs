@@ -64,6 +64,7 @@ mod tests {
             events_used: 12,
             misfit: None,
             chassis_variant: None,
+            wheel_order_shake: false,
         };
         let v = |e: Estimate| super::verdict(&[], Some(&e), 12, &cfg);
         let ok = v(est(Some(0.085), 0.081, 0.093, true));
@@ -89,6 +90,36 @@ mod tests {
             m.headline.contains("does not fit") && m.headline.contains("noisier"),
             "{m:?}"
         );
+        // With a brake-disc shake an alert sends the mechanic to the discs first.
+        let judder = Estimate {
+            misfit: Some("its steering shakes at the wheels' rotation while braking".into()),
+            wheel_order_shake: true,
+            ..est(Some(0.2), 0.15, 0.3, true)
+        };
+        let open = [crate::alerts::Alert {
+            id: 1,
+            kind: crate::alerts::Kind::Clearance,
+            t_raised: 10.0,
+            t_updated: 10.0,
+            odometer_km_raised: 1.0,
+            updates: 0,
+            summary: String::new(),
+            guidance: String::new(),
+            evidence: crate::alerts::Evidence {
+                events: Vec::new(),
+                estimate: None,
+                threshold: 0.1,
+                hits: None,
+            },
+        }];
+        let j = super::verdict(&open, Some(&judder), 12, &cfg);
+        assert_eq!(j.condition, "inspect", "{j:?}");
+        assert!(
+            j.headline.contains("brake discs") && j.headline.contains("Replace"),
+            "{j:?}"
+        );
+        let plain = super::verdict(&open, Some(&est(Some(0.2), 0.15, 0.3, true)), 12, &cfg);
+        assert_eq!(plain.condition, "replace", "{plain:?}");
         // An estimate read with a chassis variant's table keeps its condition and says which
         // geometry it was read for and what to check.
         let variant = Estimate {
@@ -252,6 +283,21 @@ fn verdict(open: &[Alert], est: Option<&Estimate>, events: usize, cfg: &AlertsSe
                 "No alert, but no clearance estimate is available (no response table or no usable event).".into(),
             ),
         }
+    };
+    // A shake locked to the wheels' rotation while braking comes from the brakes, whatever the
+    // joints: with an alert, the discs are checked before the joints are replaced.
+    let (condition, headline) = match est {
+        Some(e) if e.wheel_order_shake && (has(Kind::Clearance) || has(Kind::Shimmy55)) => (
+            "inspect",
+            format!(
+                "Steering shake while braking, locked to the wheels' rotation: check the front \
+                 brake discs for thickness variation and run-out first, then the steering joints. \
+                 The braking shake the alert rests on is not the joints' alone, so the clearance \
+                 estimate is not to be trusted until the discs are fixed. (The alert: {})",
+                headline.trim_end_matches('.')
+            ),
+        ),
+        _ => (condition, headline),
     };
     // A chassis variant is a finding of its own: the car's steering geometry is not its
     // model's (a scrub radius the model does not have comes from the wheels' offset).
