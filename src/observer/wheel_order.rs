@@ -24,7 +24,7 @@
 //! a rattle in worn joints spreads over the band. Neither is all of it: passing through the
 //! steering's own resonance as the wheel order sweeps down, the unbalance's line can grow while
 //! braking, and a rattle partly locks to the wheel, so a vehicle without a disc variation has
-//! a median share up to about 0.5 on the simulated plants (0.51 the largest of 370 vehicles),
+//! a median share up to about 0.5 on the simulated plants (0.51 the largest of 330 vehicles),
 //! and the default limit sits above it (docs/ACCURACY.md, "A brake-torque variation").
 //!
 //! What it is not: an estimate of the disc variation, a correction of the clearance estimate,
