@@ -184,11 +184,12 @@ def test_bad_input_raises_a_clear_error(tmp_path, sim_logs, data_dir, shimmy_bin
         sm.decode(str(sim_logs[0]), str(tmp_path / "missing.dbc"))
     corrupt = tmp_path / "corrupt.blf"
     corrupt.write_bytes(b"LOGG" + bytes(range(256)) * 8)
-    # A corrupt log: what it holds is skipped and counted, as the CLI does (no frame, no
-    # event), and the export reports it failed.
-    got = sm.estimate(str(corrupt), "toyota_rav4")
-    assert got == cli_estimate(shimmy_bin, "toyota_rav4", [corrupt])
-    assert got["events"] == [] and got["clearance_mm"] is None
+    # A corrupt log, from which no frame can be read: an error naming it, as the CLI gives,
+    # and the export reports it failed.
+    with pytest.raises(sm.ShimmyError, match="corrupt.blf.*no CAN frame"):
+        sm.estimate(str(corrupt), "toyota_rav4")
+    cli = run_cli(shimmy_bin, "estimate", "--profile", "toyota_rav4", corrupt, check=False)
+    assert cli.returncode != 0 and "corrupt.blf" in cli.stderr and "no CAN frame" in cli.stderr
     with pytest.raises(sm.ShimmyError, match="is a directory|Is a directory|cannot open"):
         sm.estimate(str(tmp_path), "toyota_rav4")
     s = sm.export([str(sim_logs[0]), str(corrupt)], "toyota_rav4", "v1", tmp_path / "lake")

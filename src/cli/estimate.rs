@@ -286,8 +286,9 @@ fn feed_logs(off: &mut Offline, logs: &[PathBuf], what: &str, tool: &str) -> any
         let st = crate::source::CanSource::stats(&src);
         anyhow::ensure!(
             st.frames > 0 || st.malformed == 0,
-            "{what} {}: no CAN frame read and {} line(s) or record(s) not understood: it is not \
-             a candump -L, Vector ASC, BLF or MF4 log (the reader's first complaints are above)",
+            "{what} {}: no CAN frame could be read from it ({} line(s) or record(s) not \
+             understood): not a log the readers know (candump -L, Vector ASC, BLF, MF4), or a \
+             corrupt one (the reader's first complaints are above)",
             log.display(),
             st.malformed
         );
