@@ -314,6 +314,17 @@ pub struct Detector {
     last_ignored: Option<IgnoredApplication>,
 }
 
+/// Appends `x` to a ring of fixed capacity: when full, the oldest sample makes room while no
+/// event is being collected (`idle`); during an event the sample is dropped.
+fn push_ring(ring: &mut VecDeque<(i64, f64)>, idle: bool, x: (i64, f64)) {
+    if ring.len() == ring.capacity() && idle {
+        ring.pop_front();
+    }
+    if ring.len() < ring.capacity() {
+        ring.push_back(x);
+    }
+}
+
 fn secs(t_ns: i64) -> f64 {
     t_ns as f64 * 1e-9
 }
@@ -380,10 +391,7 @@ impl Detector {
     pub fn push(&mut self, s: &Sample) -> Option<Finished<'_>> {
         if self.finished.take().is_some() {
             // The previous event's samples were lent out; drop them now.
-            self.steer.clear();
-            self.torque.clear();
-            self.speed.clear();
-            self.decel.clear();
+            self.clear_rings();
         }
         self.update_kinematics(s);
         if let Some(a) = s.steer_rad {
@@ -399,25 +407,15 @@ impl Detector {
                 self.steer.push_back((s.t_ns, a));
             }
         }
+        // The torque's and the speed's rings are as long as the angle's; both are sent no
+        // faster than the angle on the buses mapped, so a full ring mid-event is the angle's
+        // truncation too.
+        let idle = self.state == State::Idle;
         if let Some(m) = s.torque_nm {
-            // The torque ring is as long as the angle's; the torque is sent no faster than the
-            // angle on the buses mapped, so a full ring mid-event is the angle's truncation too.
-            if self.torque.len() == self.torque.capacity() && self.state == State::Idle {
-                self.torque.pop_front();
-            }
-            if self.torque.len() < self.torque.capacity() {
-                self.torque.push_back((s.t_ns, m));
-            }
+            push_ring(&mut self.torque, idle, (s.t_ns, m));
         }
         if let Some(v) = s.speed_mps {
-            // As the torque's ring: the speed is sent no faster than the angle on the buses
-            // mapped.
-            if self.speed.len() == self.speed.capacity() && self.state == State::Idle {
-                self.speed.pop_front();
-            }
-            if self.speed.len() < self.speed.capacity() {
-                self.speed.push_back((s.t_ns, v));
-            }
+            push_ring(&mut self.speed, idle, (s.t_ns, v));
         }
         if s.steer_invalid && self.state != State::Idle {
             self.invalid += 1;
@@ -460,10 +458,7 @@ impl Detector {
     /// Close an event still open at the end of the input (its tail may be short).
     pub fn flush(&mut self) -> Option<Finished<'_>> {
         if self.finished.take().is_some() {
-            self.steer.clear();
-            self.torque.clear();
-            self.speed.clear();
-            self.decel.clear();
+            self.clear_rings();
         }
         match self.state {
             State::Idle => None,
@@ -545,27 +540,19 @@ impl Detector {
 
     fn trim_pre_roll(&mut self, now_ns: i64) {
         let keep_ns = (self.cfg.pre_roll_s * 1e9) as i64;
-        while self
-            .steer
-            .front()
-            .is_some_and(|&(t, _)| now_ns - t > keep_ns)
-        {
-            self.steer.pop_front();
+        for ring in [&mut self.steer, &mut self.torque, &mut self.speed] {
+            while ring.front().is_some_and(|&(t, _)| now_ns - t > keep_ns) {
+                ring.pop_front();
+            }
         }
-        while self
-            .torque
-            .front()
-            .is_some_and(|&(t, _)| now_ns - t > keep_ns)
-        {
-            self.torque.pop_front();
-        }
-        while self
-            .speed
-            .front()
-            .is_some_and(|&(t, _)| now_ns - t > keep_ns)
-        {
-            self.speed.pop_front();
-        }
+    }
+
+    /// Drops the samples of the sample rings (an event lent out, or one not recorded).
+    fn clear_rings(&mut self) {
+        self.steer.clear();
+        self.torque.clear();
+        self.speed.clear();
+        self.decel.clear();
     }
 
     fn start(&mut self, t_ns: i64) {
@@ -609,10 +596,7 @@ impl Detector {
             c.accel_while_braking += (-trough >= cfg.record_min_decel_g * G) as u64;
             self.last_ignored = Some(app);
             self.ignored += 1;
-            self.steer.clear();
-            self.torque.clear();
-            self.speed.clear();
-            self.decel.clear();
+            self.clear_rings();
             return None;
         }
         // Plateau: samples at or above half the peak, median.
