@@ -334,6 +334,11 @@ pub struct Observer {
     wheel_order: [std::collections::VecDeque<f64>; 2],
 }
 
+/// Where [`Observer`] keeps `signal`'s wheel-order shares.
+fn wheel_order_slot(signal: features::SteerSignal) -> usize {
+    usize::from(!signal.is_angle())
+}
+
 /// Largest `features.wheel_order.window_events`.
 pub const MAX_WHEEL_ORDER_KEPT: usize = 2000;
 
@@ -639,7 +644,7 @@ impl Observer {
             .wheel_order
             .window_events
             .clamp(1, MAX_WHEEL_ORDER_KEPT);
-        let w = &mut self.wheel_order[usize::from(!signal.is_angle())];
+        let w = &mut self.wheel_order[wheel_order_slot(signal)];
         while w.len() >= keep {
             w.pop_front();
         }
@@ -649,9 +654,10 @@ impl Observer {
     /// The median wheel-order share of the events `signal`'s estimator took, once there are
     /// enough ([`wheel_order::median_share`]).
     pub fn wheel_order_share(&self, signal: features::SteerSignal) -> Option<f64> {
-        let w = &self.wheel_order[usize::from(!signal.is_angle())];
-        let v: Vec<f64> = w.iter().copied().collect();
-        wheel_order::median_share(&v, &self.cfg.features.wheel_order)
+        wheel_order::median_share(
+            self.wheel_order[wheel_order_slot(signal)].iter().copied(),
+            &self.cfg.features.wheel_order,
+        )
     }
 
     /// Replaces the estimator with a fresh one (no evidence). No-op without a response table.
@@ -681,8 +687,8 @@ impl Observer {
             self.note_ignored();
             return;
         };
-        let tq = Self::measure_torque(&self.cfg, &mut self.torque, &fin);
-        let (rec, feats) = Self::measure(&mut self.extractor, &self.cfg, fin);
+        let (rec, feats, tq) =
+            Self::measure_event(&self.cfg, &mut self.extractor, &mut self.torque, fin);
         self.on_event(rec, feats, tq);
     }
 
@@ -693,8 +699,8 @@ impl Observer {
             self.note_ignored();
             return;
         };
-        let tq = Self::measure_torque(&self.cfg, &mut self.torque, &fin);
-        let (rec, feats) = Self::measure(&mut self.extractor, &self.cfg, fin);
+        let (rec, feats, tq) =
+            Self::measure_event(&self.cfg, &mut self.extractor, &mut self.torque, fin);
         self.on_event(rec, feats, tq);
     }
 
@@ -735,9 +741,9 @@ impl Observer {
         }) else {
             return (None, None);
         };
-        let why = match noisy {
+        let why = match (noisy, judder) {
             _ if f.fits => None,
-            Some(n) => Some(format!(
+            (Some(n), _) => Some(format!(
                 "its steering {} sensor is noisier than the response table assumes ({:.3} {u} \
                  RMS measured at standstill over {} stops, {:.3} {u} assumed), so the interval \
                  is not to be trusted; rebuild the table for this sensor (`shimmy calibrate{} \
@@ -758,18 +764,18 @@ impl Observer {
                 n.measured_rms,
                 u = n.signal.unit()
             )),
-            None if judder.is_some() => Some(format!(
+            (None, Some(share)) => Some(format!(
                 "its steering shakes at the wheels' rotation while braking, beyond what it does \
                      before the brake ({:.0} % of the braking band's power in that line, median \
                      over {} events; limit {:.0} %): a brake-torque variation (disc thickness \
                      variation, brake judder) shakes the steering whatever the joints, so the \
                      interval is not to be trusted; check the front brake discs' thickness \
                      variation and run-out first (docs/ACCURACY.md, \"A brake-torque variation\")",
-                100.0 * judder.unwrap_or(0.0),
-                self.wheel_order[usize::from(!active_signal.is_angle())].len(),
+                100.0 * share,
+                self.wheel_order[wheel_order_slot(active_signal)].len(),
                 100.0 * wo_cfg.share_max
             )),
-            None => Some(format!(
+            (None, None) => Some(format!(
                 "its events scatter more about every clearance's prediction than the response \
                  table's vehicles do (goodness of fit z = {:.1} over {:.0} features, limit \
                  {z_max:.1}), so the interval is not to be trusted; see docs/ACCURACY.md",
@@ -860,7 +866,7 @@ impl Observer {
         let rec = &fin.record;
         let t0 = (rec.t_start_s * 1e9).round() as i64;
         let t1 = ((rec.t_end_s + cfg.events.tail_s) * 1e9).round() as i64;
-        let f = extractor
+        extractor
             .extract_signal(
                 features::SteerSignal::TorqueNm,
                 tq,
@@ -869,13 +875,7 @@ impl Observer {
                 noise,
                 noise.quant_step_deg,
             )
-            .ok()?;
-        Some(Features {
-            wheel_order_share: extractor
-                .last_windowed()
-                .and_then(|w| wheel_order::share(&w, fin.speed, &cfg.features.wheel_order)),
-            ..f
-        })
+            .ok()
     }
 
     /// Keeps the application the detector just ignored, if it ignored one.
@@ -943,14 +943,40 @@ impl Observer {
                 cfg.features.sensor,
                 rec.quality.quant_step_deg,
             )
-            .ok()
-            .map(|f| Features {
-                wheel_order_share: extractor
-                    .last_windowed()
-                    .and_then(|w| wheel_order::share(&w, fin.speed, &cfg.features.wheel_order)),
-                ..f
-            });
+            .ok();
         (rec, feats)
+    }
+
+    /// A finished event's features as [`Self::measure`] and [`Self::measure_torque`] take
+    /// them, each with its wheel-order share ([`wheel_order`]) from the signal its extractor
+    /// just band-passed: the monitored vehicle's events, not the table builder's (which needs
+    /// no share).
+    fn measure_event(
+        cfg: &ObserverConfig,
+        extractor: &mut Extractor,
+        torque: &mut Option<TorqueChannel>,
+        fin: crate::events::Finished<'_>,
+    ) -> (
+        crate::events::EventRecord,
+        Option<Features>,
+        Option<Option<Features>>,
+    ) {
+        let speed = fin.speed;
+        let with_share = |f: Features, ex: &Extractor| Features {
+            wheel_order_share: ex
+                .last_windowed()
+                .and_then(|w| wheel_order::share(&w, speed, &cfg.features.wheel_order)),
+            ..f
+        };
+        let tq = Self::measure_torque(cfg, torque, &fin).map(|tf| {
+            let ex = &torque
+                .as_ref()
+                .expect("measured with a torque channel")
+                .extractor;
+            tf.map(|f| with_share(f, ex))
+        });
+        let (rec, feats) = Self::measure(extractor, cfg, fin);
+        (rec, feats.map(|f| with_share(f, extractor)), tq)
     }
 
     /// The amplitude estimate for features `f` (deg).

@@ -236,13 +236,10 @@ fn order_amplitude(
     any.then_some(best)
 }
 
-/// The per-vehicle verdict: the median share over `shares` (the used events'), when there are
-/// at least [`WheelOrderConfig::min_events`] of them.
-pub fn median_share(shares: &[f64], cfg: &WheelOrderConfig) -> Option<f64> {
-    if shares.len() < cfg.min_events.max(1) {
-        return None;
-    }
-    let mut v: Vec<f64> = shares.iter().copied().filter(|x| x.is_finite()).collect();
+/// The per-vehicle verdict: the median of `shares` (the used events'), when at least
+/// [`WheelOrderConfig::min_events`] of them are finite.
+pub fn median_share(shares: impl IntoIterator<Item = f64>, cfg: &WheelOrderConfig) -> Option<f64> {
+    let mut v: Vec<f64> = shares.into_iter().filter(|x| x.is_finite()).collect();
     if v.len() < cfg.min_events.max(1) {
         return None;
     }
@@ -363,9 +360,9 @@ mod tests {
     #[test]
     fn the_vehicle_median_waits_for_enough_events() {
         let cfg = WheelOrderConfig::default();
-        assert_eq!(median_share(&[0.9; 7], &cfg), None);
+        assert_eq!(median_share([0.9; 7], &cfg), None);
         let v = [0.1, 0.2, 0.3, 0.5, 0.6, 0.7, 0.8, 0.9];
-        assert!((median_share(&v, &cfg).unwrap() - 0.55).abs() < 1e-12);
+        assert!((median_share(v, &cfg).unwrap() - 0.55).abs() < 1e-12);
     }
 
     #[test]

@@ -660,9 +660,9 @@ impl EventStage for ObserverStage {
             below_mm: (used && !s.detectable).then_some(s.below_mm),
             p_above: used.then(|| est.prob_above(self.clearance_mm)),
             events_used: s.events_used,
-            misfit: fit.1.filter(|_| used),
+            misfit: fit.1,
             chassis_variant: used.then(|| self.obs.chassis_variant()).flatten(),
-            wheel_order_shake: used && fit.0.is_some_and(|f| f.wheel_order_shake),
+            wheel_order_shake: fit.0.is_some_and(|f| f.wheel_order_shake),
         })
     }
 }
