@@ -135,17 +135,7 @@ pub struct Extractor {
     filt: Option<(f64, Bandpass, f64)>,
     grid: Vec<f64>,
     /// The last event's band-passed signal and its windows ([`Self::last_windowed`]).
-    last: Option<Last>,
-}
-
-/// What [`Extractor::last_windowed`] lends out.
-struct Last {
-    y: Vec<f64>,
-    t0_ns: i64,
-    period_ns: f64,
-    braking: (usize, usize),
-    cruise: (usize, usize),
-    band_hz: (f64, f64),
+    last: Option<(Vec<f64>, super::wheel_order::Grid)>,
 }
 
 impl Default for Extractor {
@@ -182,14 +172,9 @@ impl Extractor {
     /// uniform grid, with its braking and cruise windows: what the wheel-order check
     /// ([`super::wheel_order`]) reads. `None` before the first event or after one that failed.
     pub fn last_windowed(&self) -> Option<super::wheel_order::Windowed<'_>> {
-        self.last.as_ref().map(|l| super::wheel_order::Windowed {
-            y: &l.y,
-            t0_ns: l.t0_ns,
-            period_ns: l.period_ns,
-            braking: l.braking,
-            cruise: l.cruise,
-            band_hz: l.band_hz,
-        })
+        self.last
+            .as_ref()
+            .map(|(y, grid)| super::wheel_order::Windowed { y, grid: *grid })
     }
 
     /// Features of `samples` (`(t_ns, angle_rad)`, increasing time) over the window
@@ -291,14 +276,14 @@ impl Extractor {
         let noise_var = (q * q / 12.0 + noise.noise_deg * noise.noise_deg) * enbw;
         let excess = (rms * rms - noise_var).max(0.0).sqrt();
         let band_hz = band_hz(fs_hz);
-        self.last = Some(Last {
-            y,
+        let grid = super::wheel_order::Grid {
             t0_ns: samples[0].0,
             period_ns: fit.period_ns,
             braking: (i0, i1),
             cruise: (c0, c1),
             band_hz,
-        });
+        };
+        self.last = Some((y, grid));
         Ok(Features {
             peak_deg: peak,
             rms_deg: rms,

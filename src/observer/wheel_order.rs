@@ -105,10 +105,9 @@ const HIGH_EDGE_MARGIN: f64 = 0.8;
 /// Shortest braking part with the wheel order inside the band (s).
 const MIN_BRAKING_S: f64 = 0.5;
 
-/// The band-passed steering signal of one event on its uniform grid and where its windows are.
-pub struct Windowed<'a> {
-    /// Band-passed signal, one value per grid point.
-    pub y: &'a [f64],
+/// Where one event's windows sit on its uniform grid.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Grid {
     /// Time of grid point 0 (ns) and the grid's period (ns).
     pub t0_ns: i64,
     pub period_ns: f64,
@@ -117,6 +116,13 @@ pub struct Windowed<'a> {
     pub cruise: (usize, usize),
     /// The band (Hz) the signal was passed through.
     pub band_hz: (f64, f64),
+}
+
+/// The band-passed steering signal of one event on its uniform grid and where its windows are.
+pub struct Windowed<'a> {
+    /// Band-passed signal, one value per grid point.
+    pub y: &'a [f64],
+    pub grid: Grid,
 }
 
 /// The event's share `x` (module docs), or `None` when the speed does not cover the windows or
@@ -128,12 +134,12 @@ pub fn share(w: &Windowed<'_>, speed: &[(i64, f64)], cfg: &WheelOrderConfig) -> 
     }
     let r = cfg.wheel_radius_m;
     let two_pi_r = 2.0 * std::f64::consts::PI * r;
-    let v_lo = LOW_EDGE_MARGIN * w.band_hz.0 * two_pi_r / cfg.order_search[0];
-    let v_hi = HIGH_EDGE_MARGIN * w.band_hz.1 * two_pi_r / cfg.order_search[1];
-    let dt = w.period_ns * 1e-9;
+    let v_lo = LOW_EDGE_MARGIN * w.grid.band_hz.0 * two_pi_r / cfg.order_search[0];
+    let v_hi = HIGH_EDGE_MARGIN * w.grid.band_hz.1 * two_pi_r / cfg.order_search[1];
+    let dt = w.grid.period_ns * 1e-9;
     // Braking part: grid points whose speed puts the wheel order well inside the band.
-    let (b0, b1) = (w.braking.0, w.braking.1.min(w.y.len()));
-    let (c0, c1) = (w.cruise.0, w.cruise.1.min(w.y.len()));
+    let (b0, b1) = (w.grid.braking.0, w.grid.braking.1.min(w.y.len()));
+    let (c0, c1) = (w.grid.cruise.0, w.grid.cruise.1.min(w.y.len()));
     let (n_b, power) = inside_power(w, speed, (b0, b1), (v_lo, v_hi));
     if (n_b as f64) * dt < MIN_BRAKING_S {
         return None;
@@ -195,14 +201,20 @@ fn inside_power(
     let mut it = SpeedAt::new(speed);
     (i0..i1)
         .filter(|&i| {
-            it.at(w.t0_ns + (i as f64 * w.period_ns) as i64)
+            it.at(w.grid.t0_ns + (i as f64 * w.grid.period_ns) as i64)
                 .is_some_and(|v| v > v_lo && v < v_hi)
         })
         .fold((0, 0.0), |(n, p), i| (n + 1, p + w.y[i] * w.y[i]))
 }
 
+/// Most orders the search can visit: `order_search` stays below 1.9 (validated).
+const MAX_ORDERS: usize = (1.9 / ORDER_STEP) as usize + 2;
+
 /// Largest order-tracked amplitude over the order search, on the grid points of `[i0, i1)`
 /// whose speed lies in `(v_lo, v_hi)`; `None` when the speed does not reach them.
+///
+/// One pass over the grid: the wheel angle θ = ∫ v/R dt is integrated once and every searched
+/// order k demodulates with e^{−ikθ}, stepped from order to order by a rotation.
 fn order_amplitude(
     w: &Windowed<'_>,
     speed: &[(i64, f64)],
@@ -210,30 +222,33 @@ fn order_amplitude(
     (v_lo, v_hi): (f64, f64),
     cfg: &WheelOrderConfig,
 ) -> Option<f64> {
-    let dt = w.period_ns * 1e-9;
+    let dt = w.grid.period_ns * 1e-9;
     let [lo, hi] = cfg.order_search;
-    let steps = ((hi - lo) / ORDER_STEP).round() as usize;
-    let mut best = 0.0f64;
-    let mut any = false;
-    for s in 0..=steps {
-        let k = lo + s as f64 * ORDER_STEP;
-        let mut it = SpeedAt::new(speed);
-        let (mut re, mut im, mut n, mut theta) = (0.0, 0.0, 0usize, 0.0f64);
-        for i in i0..i1 {
-            let v = it.at(w.t0_ns + (i as f64 * w.period_ns) as i64)?;
-            theta += k * v / cfg.wheel_radius_m * dt;
-            if v > v_lo && v < v_hi {
-                re += w.y[i] * theta.cos();
-                im -= w.y[i] * theta.sin();
-                n += 1;
+    let orders = (((hi - lo) / ORDER_STEP).round() as usize + 1).min(MAX_ORDERS);
+    let mut acc = [(0.0f64, 0.0f64); MAX_ORDERS];
+    let mut it = SpeedAt::new(speed);
+    let (mut n, mut theta) = (0usize, 0.0f64);
+    for i in i0..i1 {
+        let v = it.at(w.grid.t0_ns + (i as f64 * w.grid.period_ns) as i64)?;
+        theta += v / cfg.wheel_radius_m * dt;
+        if v > v_lo && v < v_hi {
+            n += 1;
+            let y = w.y[i];
+            let (mut s, mut c) = (lo * theta).sin_cos();
+            let (sd, cd) = (ORDER_STEP * theta).sin_cos();
+            for a in &mut acc[..orders] {
+                a.0 += y * c;
+                a.1 -= y * s;
+                (c, s) = (c * cd - s * sd, s * cd + c * sd);
             }
         }
-        if n > 0 {
-            any = true;
-            best = best.max(2.0 * (re * re + im * im).sqrt() / n as f64);
-        }
     }
-    any.then_some(best)
+    (n > 0).then(|| {
+        acc[..orders]
+            .iter()
+            .map(|(re, im)| 2.0 * (re * re + im * im).sqrt() / n as f64)
+            .fold(0.0, f64::max)
+    })
 }
 
 /// The per-vehicle verdict: the median of `shares` (the used events'), when at least
@@ -299,11 +314,13 @@ mod tests {
     ) -> Option<f64> {
         let w = Windowed {
             y,
-            t0_ns: 0,
-            period_ns: 2e7,
-            braking: b,
-            cruise: c,
-            band_hz: (3.0, 20.0),
+            grid: Grid {
+                t0_ns: 0,
+                period_ns: 2e7,
+                braking: b,
+                cruise: c,
+                band_hz: (3.0, 20.0),
+            },
         };
         share(&w, speed, &WheelOrderConfig::default())
     }
