@@ -984,11 +984,7 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
         eprintln!(
             "fleet: torque tables of the profile's chassis variants beside the nominal one: {} \
              (each vehicle is read with the one its events fit best)",
-            torque_alternatives
-                .iter()
-                .map(|a| a.name.as_str())
-                .collect::<Vec<_>>()
-                .join(", ")
+            shimmy::observer::Alternative::names(&torque_alternatives)
         );
     }
     let tables = Tables {

@@ -238,11 +238,7 @@ pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
             "shimmyd: {} torque table(s) of chassis variants beside the nominal one ({}): the \
              estimate reads the one the events fit best",
             torque_alternatives.len(),
-            torque_alternatives
-                .iter()
-                .map(|a| a.name.as_str())
-                .collect::<Vec<_>>()
-                .join(", ")
+            crate::observer::Alternative::names(&torque_alternatives)
         );
     }
     // A baseline is read before the stage takes the tables (they are cloned only for it).

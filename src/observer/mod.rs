@@ -374,6 +374,14 @@ pub struct Alternative {
     pub table: ResponseTable,
 }
 
+impl Alternative {
+    /// The alternatives' names joined for a start-up line ("scrub radius 10 mm, ...").
+    pub fn names(alternatives: &[Alternative]) -> String {
+        let names: Vec<&str> = alternatives.iter().map(|a| a.name.as_str()).collect();
+        names.join(", ")
+    }
+}
+
 /// One structural alternative inside the torque channel, with its estimator.
 struct TorqueAlternative {
     name: String,
