@@ -160,6 +160,13 @@ pub struct FleetArgs {
     /// assumes. Use a separate --work-dir per value.
     #[arg(long, default_value_t = 1.0, value_name = "F")]
     pub sensor_noise_factor: f64,
+    /// Draw each vehicle's steering stiffnesses and dampings (k_s, c_s, k_t, k_g, c_g,
+    /// MODEL.md §9) within ±REL of the nominal instead of the profile's (or the default) prior,
+    /// the other nuisances as before: vehicles beyond the prior the tables integrate out (0.25
+    /// = ±25 %). A profile copy with that prior draws the same vehicles for the same seeds. Use
+    /// a separate --work-dir per value.
+    #[arg(long, value_name = "REL")]
+    pub stiffness_damping_rel: Option<f64>,
     /// Measure the same vehicles again: replicate 0 (the default) is the drive as its seed
     /// draws it; replicate r > 0 keeps everything the seed fixes about the vehicle (clearance,
     /// parameters, unbalance and its two phases, road-noise level, the braking plan) and draws
@@ -218,6 +225,10 @@ pub struct EvalTruth {
     /// `--sensor-noise-factor` of the run that wrote the log.
     #[serde(default = "one")]
     pub sensor_noise_factor: f64,
+    /// `--stiffness-damping-rel` of the run that wrote the log; absent when it was not given
+    /// (the profile's prior, or a profile copy's: files written before the option do not say).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stiffness_damping_rel: Option<f64>,
     /// Hash of the nominal vehicle (`--vehicle`) of the run that wrote the log.
     #[serde(default = "default_vehicle_hash")]
     pub nominal_vehicle_hash: String,
@@ -568,10 +579,13 @@ fn vehicle_log(
     let seed = args.seed_base + k as u64;
     let log = dir.join(format!("fleet_{seed}.log"));
     let eval_path = log.with_extension("eval.json");
-    let prior = setup
+    let mut prior = setup
         .profile
         .as_ref()
         .map_or_else(NuisanceRanges::default, |p| p.prior);
+    if let Some(rel) = args.stiffness_damping_rel {
+        prior.stiffness_damping_rel = rel;
+    }
     let plan = vehicle_plan_with(&nominal.params, &prior, seed, args.events);
     let c_mm = args.clearance_mm.unwrap_or(plan.clearance_mm);
     if args.reuse && log.exists() && eval_path.exists() {
@@ -617,6 +631,16 @@ fn vehicle_log(
                 eval_path.display(),
                 e.sensor_noise_factor,
                 args.sensor_noise_factor
+            );
+        }
+        if e.stiffness_damping_rel.is_some()
+            && e.stiffness_damping_rel != args.stiffness_damping_rel
+        {
+            anyhow::bail!(
+                "{} is for --stiffness-damping-rel {:?}, not {:?}",
+                eval_path.display(),
+                e.stiffness_damping_rel,
+                args.stiffness_damping_rel
             );
         }
         if e.pre_brake != args.pre_brake {
@@ -708,6 +732,7 @@ fn vehicle_log(
         phase_change: args.phase_change.clone(),
         pre_brake: args.pre_brake.clone(),
         sensor_noise_factor: args.sensor_noise_factor,
+        stiffness_damping_rel: args.stiffness_damping_rel,
         replicate: args.replicate,
         nominal_vehicle_hash: nominal.hash.clone(),
         profile: setup.profile_name(),
@@ -932,6 +957,11 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
     let f = args.sensor_noise_factor;
     if !(f.is_finite() && (0.0..=100.0).contains(&f)) {
         anyhow::bail!("--sensor-noise-factor must be in [0, 100], not {f}");
+    }
+    if let Some(r) = args.stiffness_damping_rel {
+        if !(r.is_finite() && (0.0..0.9).contains(&r)) {
+            anyhow::bail!("--stiffness-damping-rel must be in [0, 0.9), not {r}");
+        }
     }
     let setup = Setup::load(&args)?;
     let table = match (&args.table, &setup.profile) {
