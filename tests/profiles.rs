@@ -149,11 +149,21 @@ fn profile_copy(name: &str, edit: impl Fn(String) -> String) -> std::path::PathB
             text = text.replace(&line, &format!("{key} = \"{}\"", abs.display()));
         }
     }
+    // The chassis variants' tables too.
     let abs = |f: &str| src.join(f).canonicalize().unwrap().display().to_string();
-    text = text.replace(
-        "torque_table = \"table_torque_scrub10mm.json\"",
-        &format!("torque_table = \"{}\"", abs("table_torque_scrub10mm.json")),
-    );
+    let lines: Vec<String> = text
+        .lines()
+        .map(|l| {
+            match l
+                .strip_prefix("torque_table = \"")
+                .and_then(|r| r.strip_suffix('"'))
+            {
+                Some(f) if !f.starts_with('/') => format!("torque_table = \"{}\"", abs(f)),
+                _ => l.to_string(),
+            }
+        })
+        .collect();
+    text = lines.join("\n") + "\n";
     std::fs::write(dir.join("profile.toml"), edit(text)).unwrap();
     dir
 }
@@ -166,23 +176,50 @@ fn rand_tag() -> u128 {
 }
 
 /// A chassis variant's torque table is checked against the variant's chassis (the profile's
-/// with the variant's scrub radius), not the profile's own; the nominal table is not the
-/// variant's, and a variant whose scrub radius is not its table's is refused, as are priors
-/// that leave the profile's own chassis nothing and a variant without the nominal table.
+/// with the variant's scrub radius or kingpin damping), not the profile's own; the nominal
+/// table is not the variant's, and a variant whose scrub radius or damping is not its table's
+/// is refused, as are a variant that changes nothing, priors that leave the profile's own
+/// chassis nothing and a variant without the nominal table.
 #[test]
 fn chassis_variants_are_checked_against_their_own_chassis() {
     let p = Profile::load("shimmy_reference_eps").unwrap();
     let nominal = p.load_torque_table().unwrap().unwrap();
     let alts = p.load_torque_alternatives(&nominal).unwrap();
-    assert_eq!(alts.len(), 1);
+    let names: Vec<&str> = alts.iter().map(|a| a.name.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "scrub radius 10 mm",
+            "kingpin damping x1.2",
+            "kingpin damping x0.8"
+        ]
+    );
     let a = &alts[0];
-    assert_eq!(a.name, "scrub radius 10 mm");
     assert_eq!(a.prior, profile::DEFAULT_VARIANT_PRIOR);
-    assert_eq!(a.table.sensor, nominal.sensor);
-    assert_eq!(a.table.clearance_mm, nominal.clearance_mm);
-    // The variant's table is not the profile's own chassis's.
-    let e = format!("{:#}", p.check_torque_table(&a.table).unwrap_err());
-    assert!(e.contains("[column] enabled"), "{e}");
+    assert!(a.inspect.as_deref().unwrap().contains("wheels' offset"));
+    for a in &alts {
+        assert_eq!(a.table.sensor, nominal.sensor);
+        assert_eq!(a.table.clearance_mm, nominal.clearance_mm);
+        // No variant's table is the profile's own chassis's.
+        let e = format!("{:#}", p.check_torque_table(&a.table).unwrap_err());
+        assert!(e.contains("[column] enabled"), "{}: {e}", a.name);
+    }
+    // The damping variants are the car model's own, nothing to inspect.
+    assert!(alts[1].inspect.is_none() && alts[2].inspect.is_none());
+
+    // Each damping table is checked against its own scale.
+    let swapped = profile_copy("shimmy_reference_eps", |t| {
+        t.replace("kingpin_damping_scale = 1.2", "kingpin_damping_scale = 1.1")
+    });
+    let sp = Profile::load_dir(&swapped).unwrap();
+    let e = format!("{:#}", sp.load_torque_alternatives(&nominal).unwrap_err());
+    assert!(e.contains("chassis variant `kingpin damping x1.2`"), "{e}");
+    // A variant that changes nothing is refused.
+    let idle = profile_copy("shimmy_reference_eps", |t| {
+        t.replace("kingpin_damping_scale = 0.8\n", "")
+    });
+    let e = format!("{:#}", Profile::load_dir(&idle).unwrap_err());
+    assert!(e.contains("changes nothing"), "{e}");
 
     let wrong = profile_copy("shimmy_reference_eps", |t| {
         t.replace("scrub_radius_mm = 10.0", "scrub_radius_mm = 5.0")
@@ -205,18 +242,9 @@ fn chassis_variants_are_checked_against_their_own_chassis() {
 
     let alone = profile_copy("shimmy_reference_eps", |t| {
         t.lines()
-            .filter(|l| !l.starts_with("torque_table = \"/"))
+            .filter(|l| !(l.starts_with("torque_table = ") && l.ends_with("table_torque.json\"")))
             .collect::<Vec<_>>()
             .join("\n")
-            .replacen(
-                "[[chassis.variants]]",
-                &format!(
-                    "[[chassis.variants]]\ntorque_table = \"{}\"",
-                    repo("config/vehicles/shimmy_reference_eps/table_torque_scrub10mm.json")
-                        .display()
-                ),
-                1,
-            )
     });
     let e = format!("{:#}", Profile::load_dir(&alone).unwrap_err());
     assert!(e.contains("needs the nominal torque_table"), "{e}");

@@ -436,6 +436,7 @@ mod tests {
             events_used: 7,
             misfit: None,
             chassis_variant: None,
+            chassis_variant_inspect: None,
             wheel_order_shake: false,
         };
         // Just below the raise probability: nothing.

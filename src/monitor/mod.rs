@@ -71,6 +71,10 @@ pub struct Estimate {
     /// its table.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub chassis_variant: Option<String>,
+    /// What to check on the car for that variant (the profile's `inspect`: "the wheels'
+    /// offset ..."); absent when the variant is no fault.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub chassis_variant_inspect: Option<String>,
     /// The model does not fit because the steering shakes at the wheels' rotation while
     /// braking (src/observer/wheel_order.rs): a brake disc thickness variation, to be checked
     /// before the joints are judged.

@@ -371,6 +371,9 @@ pub struct Alternative {
     /// Its prior probability, before any event: the nominal chassis has 1 minus the sum of
     /// its alternatives'.
     pub prior: f64,
+    /// What a workshop should check on a car read with it (the profile's `inspect`); `None`
+    /// for an alternative that is no fault (a car model's own damping, say).
+    pub inspect: Option<String>,
     pub table: ResponseTable,
 }
 
@@ -385,6 +388,7 @@ impl Alternative {
 /// One structural alternative inside the torque channel, with its estimator.
 struct TorqueAlternative {
     name: String,
+    inspect: Option<String>,
     ln_prior: f64,
     table: ResponseTable,
     estimator: Estimator,
@@ -554,7 +558,12 @@ impl Observer {
     /// describes it instead of a nominal table that reads its steady shake as wear. Needs
     /// [`Self::with_torque_table`] first, and a table of the same torque sensor.
     pub fn with_torque_alternative(mut self, alt: Alternative) -> anyhow::Result<Observer> {
-        let Alternative { name, prior, table } = alt;
+        let Alternative {
+            name,
+            prior,
+            inspect,
+            table,
+        } = alt;
         let name = name.as_str();
         let cfg = self.torque_estimator_config();
         let Some(ch) = self.torque.as_mut() else {
@@ -582,6 +591,7 @@ impl Observer {
         let estimator = Estimator::new(&table, cfg)?;
         ch.alternatives.push(TorqueAlternative {
             name: name.to_string(),
+            inspect,
             ln_prior: prior.ln(),
             table,
             estimator,
@@ -593,10 +603,20 @@ impl Observer {
     /// name while the torque channel is active and one of its alternatives fits the events
     /// best, `None` otherwise (the nominal chassis, or no alternatives).
     pub fn chassis_variant(&self) -> Option<String> {
+        self.chosen_alternative().map(|a| a.name.clone())
+    }
+
+    /// What to check on the car when [`Self::chassis_variant`] names a variant that has
+    /// something to check ([`Alternative::inspect`]).
+    pub fn chassis_variant_inspect(&self) -> Option<String> {
+        self.chosen_alternative().and_then(|a| a.inspect.clone())
+    }
+
+    fn chosen_alternative(&self) -> Option<&TorqueAlternative> {
         let t = self.torque.as_ref().filter(|t| t.active())?;
         match t.chosen() {
             0 => None,
-            i => Some(t.alternatives[i - 1].name.clone()),
+            i => Some(&t.alternatives[i - 1]),
         }
     }
 

@@ -353,6 +353,7 @@ mod tests {
                 events_used: self.done as u32,
                 misfit: None,
                 chassis_variant: None,
+                chassis_variant_inspect: None,
                 wheel_order_shake: false,
             })
         }

@@ -103,16 +103,30 @@ pub struct ChassisSection {
     pub variants: Vec<ChassisVariant>,
 }
 
-/// One `[[chassis.variants]]` entry.
+/// One `[[chassis.variants]]` entry: the profile's chassis with one or more of its parameters
+/// changed. At least one change is given.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ChassisVariant {
     /// How reports name it ("scrub radius 10 mm").
     pub name: String,
-    /// The kingpin's scrub radius r_s of this variant (mm; MODEL.md §9 `scrub_radius_m`).
-    pub scrub_radius_mm: f64,
-    /// Its torque table (`shimmy calibrate --signal torque` on the chassis with this scrub
-    /// radius and the §15 column), relative to the profile folder.
+    /// The kingpin's scrub radius r_s of this variant (mm; MODEL.md §9 `scrub_radius_m`);
+    /// absent: the chassis's own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scrub_radius_mm: Option<f64>,
+    /// The variant's kingpin damping c_s as a multiple of the chassis's (MODEL.md §9
+    /// `kingpin_damping_nms_per_rad`); absent: 1. The rattle's onset hangs on c_s (a threshold,
+    /// src/observer/linear.rs), so a car whose damping sits beyond the prior's ±10 % is read as
+    /// far too worn or far too tight by the nominal table.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kingpin_damping_scale: Option<f64>,
+    /// What a workshop should check on a car read with this variant ("the wheels' offset
+    /// (non-standard wheels or spacers change the scrub radius)"); absent: nothing, the
+    /// variant is a property of the car model, not a fault.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inspect: Option<String>,
+    /// Its torque table (`shimmy calibrate --signal torque` on the chassis with this change
+    /// and the §15 column), relative to the profile folder.
     pub torque_table: String,
     /// The probability that a car of this model has this variant rather than the profile's
     /// chassis, before any of its events is seen; default [`DEFAULT_VARIANT_PRIOR`]. A vehicle
@@ -393,13 +407,31 @@ impl Profile {
         }
         let mut names = std::collections::HashSet::new();
         for v in &file.chassis.variants {
-            if !(v.scrub_radius_mm.is_finite() && (0.0..=50.0).contains(&v.scrub_radius_mm)) {
+            if v.scrub_radius_mm.is_none() && v.kingpin_damping_scale.is_none() {
                 bail!(
-                    "{}: chassis variant `{}`: scrub_radius_mm must be 0 to 50 mm (got {})",
+                    "{}: chassis variant `{}` changes nothing: give scrub_radius_mm or \
+                     kingpin_damping_scale",
                     ctx(),
-                    v.name,
-                    v.scrub_radius_mm
+                    v.name
                 );
+            }
+            if let Some(r) = v.scrub_radius_mm {
+                if !(r.is_finite() && (0.0..=50.0).contains(&r)) {
+                    bail!(
+                        "{}: chassis variant `{}`: scrub_radius_mm must be 0 to 50 mm (got {r})",
+                        ctx(),
+                        v.name
+                    );
+                }
+            }
+            if let Some(k) = v.kingpin_damping_scale {
+                if !(k.is_finite() && (0.2..=5.0).contains(&k)) {
+                    bail!(
+                        "{}: chassis variant `{}`: kingpin_damping_scale must be 0.2 to 5 (got {k})",
+                        ctx(),
+                        v.name
+                    );
+                }
             }
             if v.name.trim().is_empty()
                 || v.name == crate::observer::NOMINAL_TABLE
@@ -509,7 +541,12 @@ impl Profile {
     /// The chassis of a variant: the profile's with the variant's change.
     pub fn variant_vehicle(&self, v: &ChassisVariant) -> VehicleParams {
         let mut p = self.vehicle.clone();
-        p.steering.scrub_radius_m = v.scrub_radius_mm / 1000.0;
+        if let Some(r) = v.scrub_radius_mm {
+            p.steering.scrub_radius_m = r / 1000.0;
+        }
+        if let Some(k) = v.kingpin_damping_scale {
+            p.steering.kingpin_damping_nms_per_rad *= k;
+        }
         p
     }
 
@@ -550,6 +587,7 @@ impl Profile {
             out.push(crate::observer::Alternative {
                 name: v.name.clone(),
                 prior: v.prior_probability,
+                inspect: v.inspect.clone(),
                 table: t,
             });
         }

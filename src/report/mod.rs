@@ -64,6 +64,7 @@ mod tests {
             events_used: 12,
             misfit: None,
             chassis_variant: None,
+            chassis_variant_inspect: None,
             wheel_order_shake: false,
         };
         let v = |e: Estimate| super::verdict(&[], Some(&e), 12, &cfg);
@@ -124,6 +125,10 @@ mod tests {
         // geometry it was read for and what to check.
         let variant = Estimate {
             chassis_variant: Some("scrub radius 10 mm".into()),
+            chassis_variant_inspect: Some(
+                "the wheels' offset (non-standard wheels or spacers change the scrub radius)"
+                    .into(),
+            ),
             ..est(Some(0.085), 0.081, 0.093, true)
         };
         let c = v(variant);
@@ -133,6 +138,18 @@ mod tests {
                 && c.headline.contains("scrub radius 10 mm")
                 && c.headline.contains("wheels' offset"),
             "{c:?}"
+        );
+        // A variant that is no fault (the car model's own damping) names itself, checks nothing.
+        let damping = v(Estimate {
+            chassis_variant: Some("kingpin damping x1.2".into()),
+            ..est(Some(0.3), 0.22, 0.4, true)
+        });
+        let own = v(est(Some(0.3), 0.22, 0.4, true));
+        assert_eq!(damping.condition, own.condition, "{damping:?}");
+        assert!(
+            damping.headline.contains("kingpin damping x1.2")
+                && !damping.headline.contains("check"),
+            "{damping:?}"
         );
     }
 }
@@ -299,14 +316,20 @@ fn verdict(open: &[Alert], est: Option<&Estimate>, events: usize, cfg: &AlertsSe
         ),
         _ => (condition, headline),
     };
-    // A chassis variant is a finding of its own: the car's steering geometry is not its
-    // model's (a scrub radius the model does not have comes from the wheels' offset).
+    // A chassis variant is a finding of its own: the car's steering is not its model's (a
+    // scrub radius the model does not have comes from the wheels' offset; a kingpin damping
+    // beyond the prior is the car model's own and nothing to repair).
     let headline = match est.and_then(|e| e.chassis_variant.as_deref()) {
-        Some(name) => format!(
-            "{headline} The braking shake fits this car's steering best with a {name} (not the \
-             car model's own geometry), and the clearance was estimated for it: check the \
-             wheels' offset (non-standard wheels or spacers change the scrub radius)."
-        ),
+        Some(name) => {
+            let check = est
+                .and_then(|e| e.chassis_variant_inspect.as_deref())
+                .map(|c| format!(": check {}", c.trim_end_matches('.')))
+                .unwrap_or_default();
+            format!(
+                "{headline} The braking shake fits this car's steering best with a {name} (not \
+                 the car model's own), and the clearance was estimated for it{check}."
+            )
+        }
         None => headline,
     };
     Verdict {
