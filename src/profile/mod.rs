@@ -135,6 +135,32 @@ pub struct ChassisVariant {
     pub prior_probability: f64,
 }
 
+impl ChassisVariant {
+    /// Its own fields: at least one change, each in range, and a prior probability in (0, 1).
+    /// What concerns the profile (unique names, the nominal torque table beside it, the
+    /// priors' sum) the profile checks.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        if self.scrub_radius_mm.is_none() && self.kingpin_damping_scale.is_none() {
+            bail!("changes nothing: give scrub_radius_mm or kingpin_damping_scale");
+        }
+        if let Some(r) = self.scrub_radius_mm {
+            if !(r.is_finite() && (0.0..=50.0).contains(&r)) {
+                bail!("scrub_radius_mm must be 0 to 50 mm (got {r})");
+            }
+        }
+        if let Some(k) = self.kingpin_damping_scale {
+            if !(k.is_finite() && (0.2..=5.0).contains(&k)) {
+                bail!("kingpin_damping_scale must be 0.2 to 5 (got {k})");
+            }
+        }
+        let p = self.prior_probability;
+        if !(p > 0.0 && p < 1.0) {
+            bail!("prior_probability must be between 0 and 1 (got {p})");
+        }
+        Ok(())
+    }
+}
+
 /// The prior probability of a chassis variant when its entry gives none: the profile's own
 /// chassis stays the expected one (docs/ACCURACY.md, "Chassis variants", measures the choice).
 pub const DEFAULT_VARIANT_PRIOR: f64 = 0.2;
@@ -407,32 +433,8 @@ impl Profile {
         }
         let mut names = std::collections::HashSet::new();
         for v in &file.chassis.variants {
-            if v.scrub_radius_mm.is_none() && v.kingpin_damping_scale.is_none() {
-                bail!(
-                    "{}: chassis variant `{}` changes nothing: give scrub_radius_mm or \
-                     kingpin_damping_scale",
-                    ctx(),
-                    v.name
-                );
-            }
-            if let Some(r) = v.scrub_radius_mm {
-                if !(r.is_finite() && (0.0..=50.0).contains(&r)) {
-                    bail!(
-                        "{}: chassis variant `{}`: scrub_radius_mm must be 0 to 50 mm (got {r})",
-                        ctx(),
-                        v.name
-                    );
-                }
-            }
-            if let Some(k) = v.kingpin_damping_scale {
-                if !(k.is_finite() && (0.2..=5.0).contains(&k)) {
-                    bail!(
-                        "{}: chassis variant `{}`: kingpin_damping_scale must be 0.2 to 5 (got {k})",
-                        ctx(),
-                        v.name
-                    );
-                }
-            }
+            v.validate()
+                .with_context(|| format!("{}: chassis variant `{}`", ctx(), v.name))?;
             if v.name.trim().is_empty()
                 || v.name == crate::observer::NOMINAL_TABLE
                 || !names.insert(v.name.as_str())
@@ -442,14 +444,6 @@ impl Profile {
                     ctx(),
                     crate::observer::NOMINAL_TABLE,
                     v.name
-                );
-            }
-            if !(v.prior_probability > 0.0 && v.prior_probability < 1.0) {
-                bail!(
-                    "{}: chassis variant `{}`: prior_probability must be between 0 and 1 (got {})",
-                    ctx(),
-                    v.name,
-                    v.prior_probability
                 );
             }
             if file.torque_table.is_none() {
