@@ -295,6 +295,9 @@ pub struct Setup {
     pub nominal: Nominal,
     /// `--plant`: what the vehicles are drawn around when it is not the nominal vehicle.
     pub plant: Option<Nominal>,
+    /// What each vehicle's nuisances are drawn from: the profile's prior (or the default),
+    /// with `--stiffness-damping-rel` in place of its stiffness and damping spread.
+    pub prior: NuisanceRanges,
     pub db: Database,
     pub bus: BusSpec,
     /// The DBC the estimate decodes with (`None`: the one the mapping names, the reference).
@@ -309,6 +312,13 @@ impl Setup {
             None => None,
         };
         let nominal = Nominal::load_or(args, profile.as_ref())?;
+        let mut prior = profile
+            .as_ref()
+            .map_or_else(NuisanceRanges::default, |p| p.prior);
+        if let Some(rel) = args.stiffness_damping_rel {
+            prior.stiffness_damping_rel = rel;
+            shimmy::profile::check_prior(&prior).context("--stiffness-damping-rel")?;
+        }
         let plant = match &args.plant {
             Some(p) => Some(Nominal::from_file(p, "--plant")?),
             None => None,
@@ -341,6 +351,7 @@ impl Setup {
             profile,
             nominal,
             plant,
+            prior,
             db,
             bus,
             dbc_path,
@@ -579,14 +590,7 @@ fn vehicle_log(
     let seed = args.seed_base + k as u64;
     let log = dir.join(format!("fleet_{seed}.log"));
     let eval_path = log.with_extension("eval.json");
-    let mut prior = setup
-        .profile
-        .as_ref()
-        .map_or_else(NuisanceRanges::default, |p| p.prior);
-    if let Some(rel) = args.stiffness_damping_rel {
-        prior.stiffness_damping_rel = rel;
-    }
-    let plan = vehicle_plan_with(&nominal.params, &prior, seed, args.events);
+    let plan = vehicle_plan_with(&nominal.params, &setup.prior, seed, args.events);
     let c_mm = args.clearance_mm.unwrap_or(plan.clearance_mm);
     if args.reuse && log.exists() && eval_path.exists() {
         let text = std::fs::read_to_string(&eval_path)?;
@@ -690,7 +694,7 @@ fn vehicle_log(
     );
     let text = text + &sensors_section(args.sensor_noise_factor);
     // With the §15 column, the driver's hands are drawn per leg (so per braking event).
-    let text = match (&prior.hands, p.column.enabled) {
+    let text = match (&setup.prior.hands, p.column.enabled) {
         (Some(h), true) => text + &hands_section(h)?,
         _ => text,
     };
@@ -957,11 +961,6 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
     let f = args.sensor_noise_factor;
     if !(f.is_finite() && (0.0..=100.0).contains(&f)) {
         anyhow::bail!("--sensor-noise-factor must be in [0, 100], not {f}");
-    }
-    if let Some(r) = args.stiffness_damping_rel {
-        if !(r.is_finite() && (0.0..0.9).contains(&r)) {
-            anyhow::bail!("--stiffness-damping-rel must be in [0, 0.9), not {r}");
-        }
     }
     let setup = Setup::load(&args)?;
     let table = match (&args.table, &setup.profile) {
