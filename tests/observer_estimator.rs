@@ -376,3 +376,51 @@ fn the_cruise_statistic_separates_what_the_braking_amplitude_confuses() {
         "without it the large-unbalance explanation must stay open: P = {p_without}"
     );
 }
+
+/// The report's posterior over several tables (chassis variants): a mixture weighs each
+/// table's posterior by its probability; a table that carries (nearly) all the weight gives
+/// its own reading unchanged, and two tables that disagree give an interval spanning both.
+#[test]
+fn a_mixture_of_posteriors_spans_the_tables_it_weighs() {
+    use shimmy::observer::posterior::Posterior;
+    let low = run(0.12, 30, 11);
+    let high = run(0.3, 30, 12);
+    let (sl, sh) = (low.summary(), high.summary());
+    assert!(
+        sl.q95_mm < sh.q05_mm,
+        "the two readings separate: {sl:?} {sh:?}"
+    );
+
+    // All the weight on one table: its summary and alert probability.
+    let one = Posterior::mixture([(1.0, &low), (1e-9, &high)]).unwrap();
+    assert_eq!(one.len(), 1);
+    assert_eq!(one.summary(), sl);
+    assert_eq!(one.prob_above(0.1), low.prob_above(0.1));
+
+    // Even odds: the probability is the mean, the interval spans both readings, the median
+    // lies between them, and each quantile is where the mixture's CDF reaches it.
+    let mix = Posterior::mixture([(2.0, &low), (2.0, &high)]).unwrap();
+    let s = mix.summary();
+    for c in [0.1, 0.15, 0.2] {
+        let want = 0.5 * (low.prob_above(c) + high.prob_above(c));
+        assert!((mix.prob_above(c) - want).abs() < 1e-12, "{c}");
+    }
+    assert!(s.q05_mm < sl.median_mm && s.q95_mm > sh.median_mm, "{s:?}");
+    assert!(
+        sl.median_mm < s.median_mm && s.median_mm < sh.median_mm,
+        "{s:?}"
+    );
+    for q in [0.05, 0.5, 0.95] {
+        let x = mix.quantile_mm(q);
+        assert!(
+            (1.0 - mix.prob_above(x) - q).abs() < 1e-6,
+            "q {q}: cdf at {x}"
+        );
+    }
+    assert_eq!(s.events_used, 30);
+
+    // Weights that are not finite and positive are left out; none left is no posterior.
+    assert!(Posterior::mixture([(0.0, &low), (f64::NAN, &high)]).is_none());
+    let nan = Posterior::mixture([(f64::NAN, &low), (1.0, &high)]).unwrap();
+    assert_eq!(nan.summary(), sh);
+}

@@ -397,8 +397,8 @@ pub struct VehicleResult {
     /// estimator used.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub signals: Option<shimmy::observer::SignalUse>,
-    /// With torque tables of chassis variants: the one the estimate was read from, and each
-    /// table's evidence.
+    /// With torque tables of chassis variants: the most probable one (the estimate weighs them
+    /// all), and each table's evidence.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub torque_table: Option<String>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
@@ -1012,7 +1012,7 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
     if !torque_alternatives.is_empty() {
         eprintln!(
             "fleet: torque tables of the profile's chassis variants beside the nominal one: {} \
-             (each vehicle is read with the one its events fit best)",
+             (each vehicle's estimate weighs them by how well its events fit each)",
             shimmy::observer::Alternative::names(&torque_alternatives)
         );
     }
@@ -1113,7 +1113,7 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
     );
     if !s.torque_tables.is_empty() {
         println!(
-            "read with the torque table of: {}",
+            "most probable torque table: {}",
             s.torque_tables
                 .iter()
                 .map(|(n, k)| format!("{n} {k}"))

@@ -96,7 +96,8 @@ pub struct Args {
     /// default: the profile's `torque_table`, used when the mapping maps a steering torque.
     /// Where the log carries a live torque the estimate comes from it, else from the angle.
     /// A profile with `[[chassis.variants]]` has a torque table per variant too: every one is
-    /// fed and the report reads the one the events fit best (`torque_tables` in the JSON);
+    /// fed and the report weighs their readings by how well the events fit each
+    /// (`torque_tables` in the JSON);
     /// this option replaces them all with the one file.
     #[arg(long, value_name = "FILE", conflicts_with = "angle_only")]
     pub torque_table: Option<PathBuf>,

@@ -236,7 +236,7 @@ pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
     if !torque_alternatives.is_empty() {
         eprintln!(
             "shimmyd: {} torque table(s) of chassis variants beside the nominal one ({}): the \
-             estimate reads the one the events fit best",
+             estimate weighs each by how well the events fit it",
             torque_alternatives.len(),
             crate::observer::Alternative::names(&torque_alternatives)
         );

@@ -67,8 +67,8 @@ pub struct Estimate {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub misfit: Option<String>,
     /// When the profile has chassis variants and the vehicle's events fit one better than the
-    /// car model's own chassis: its name ("scrub radius 10 mm"), the estimate being read with
-    /// its table.
+    /// car model's own chassis: its name ("scrub radius 10 mm"), the estimate being read mostly
+    /// with its table (every table weighed by its probability: [`crate::observer::posterior`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub chassis_variant: Option<String>,
     /// What to check on the car for that variant (the profile's `inspect`: "the wheels'

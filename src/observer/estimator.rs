@@ -717,6 +717,11 @@ impl Estimator {
         self.edge(n).exp()
     }
 
+    /// The clearances (mm) the posterior's mass lies between: the grid's outer cell edges.
+    pub fn support_mm(&self) -> (f64, f64) {
+        (self.edge(0).exp(), self.edge(self.ln_c.len()).exp())
+    }
+
     /// Posterior probability that c exceeds `c_mm`.
     pub fn prob_above(&self, c_mm: f64) -> f64 {
         let x = c_mm.ln();

@@ -30,6 +30,7 @@ pub mod fit;
 pub mod linear;
 pub mod marginal;
 pub mod noise_floor;
+pub mod posterior;
 pub mod rejections;
 pub mod sensor;
 pub mod simulate;
@@ -352,7 +353,8 @@ struct TorqueChannel {
     estimator: Estimator,
     /// Torque tables of the same car under structural alternatives of its chassis (a scrub
     /// radius, say: [`Observer::with_torque_alternative`]), each with its own estimator fed the
-    /// same events. The report reads the one whose events' marginal likelihood is highest.
+    /// same events. The report weighs their posteriors by each table's probability
+    /// ([`posterior`]).
     alternatives: Vec<TorqueAlternative>,
     /// Its own extractor: the torque comes at another rate than the angle, and one extractor
     /// would redesign its filter at every switch.
@@ -398,6 +400,10 @@ struct TorqueAlternative {
 /// has alternatives.
 pub const NOMINAL_TABLE: &str = "nominal";
 
+/// Below this probability of the nominal torque table the report says that the estimate
+/// weighs the chassis variants' tables too.
+const MIXED_WEIGHT: f64 = 0.95;
+
 impl TorqueChannel {
     /// Whether the report's estimate comes from this channel: once it has used an event.
     fn active(&self) -> bool {
@@ -429,8 +435,8 @@ impl TorqueChannel {
         })
     }
 
-    /// Index into [`Self::all`] of the estimator the report reads: the one with the highest
-    /// posterior weight, the nominal while none has one.
+    /// Index into [`Self::all`] of the most probable table (the one the report names and the
+    /// fit check reads): the highest posterior weight, the nominal while none has one.
     fn chosen(&self) -> usize {
         let mut best = (0, f64::NEG_INFINITY);
         for (i, l) in self.ln_weights().enumerate() {
@@ -446,6 +452,23 @@ impl TorqueChannel {
             0 => &self.estimator,
             i => &self.alternatives[i - 1].estimator,
         }
+    }
+
+    /// The clearance posterior over the tables: each table's posterior weighed by its
+    /// posterior probability ([`posterior`]); the nominal's alone while no table has an evidence.
+    fn posterior(&self) -> posterior::Posterior<'_> {
+        let lw: Vec<Option<f64>> = self.ln_weights().collect();
+        let max = lw
+            .iter()
+            .flatten()
+            .copied()
+            .fold(f64::NEG_INFINITY, f64::max);
+        posterior::Posterior::mixture(
+            self.all()
+                .zip(lw)
+                .filter_map(|((_, e, _), l)| Some(((l? - max).exp(), e))),
+        )
+        .unwrap_or_else(|| posterior::Posterior::single(self.chosen_estimator()))
     }
 
     /// Every table's evidence and its weight (softmax of the ln evidence: the posterior
@@ -488,7 +511,7 @@ pub struct TableEvidence {
     pub ln_evidence: Option<f64>,
     /// Its posterior probability among the tables (prior times evidence, normalised).
     pub weight: Option<f64>,
-    /// Whether the estimate is this table's.
+    /// Whether it is the most probable table (the estimate weighs every table by `weight`).
     pub chosen: bool,
 }
 
@@ -551,11 +574,11 @@ impl Observer {
 
     /// Adds a torque table for a structural alternative of the chassis (built on the same
     /// chassis with, say, another scrub radius: MODEL.md §14), named `name`. Its estimator is
-    /// fed every event the nominal torque table's is, and the report reads whichever table's
-    /// events, weighed by each table's prior probability, have the highest marginal likelihood
-    /// ([`Report::torque_tables`]): a car whose
-    /// chassis departs from the nominal one in that named way is read with the table that
-    /// describes it instead of a nominal table that reads its steady shake as wear. Needs
+    /// fed every event the nominal torque table's is, and the report weighs each table's
+    /// posterior by its probability (its prior times the events' marginal likelihood under
+    /// it: [`posterior`], [`Report::torque_tables`]): a car whose chassis departs from the
+    /// nominal one in that named way is read mostly with the table that describes it instead
+    /// of a nominal table that reads its steady shake as wear. Needs
     /// [`Self::with_torque_table`] first, and a table of the same torque sensor.
     pub fn with_torque_alternative(mut self, alt: Alternative) -> anyhow::Result<Observer> {
         let Alternative {
@@ -635,12 +658,23 @@ impl Observer {
         })
     }
 
-    /// The estimator the report reads: the torque's once it has used an event (of its
-    /// tables, the one the events fit best), else the angle's.
+    /// The estimator the goodness-of-fit check reads: the torque's once it has used an event
+    /// (of its tables, the most probable), else the angle's. The estimate itself is
+    /// [`Self::posterior`].
     pub fn active_estimator(&self) -> Option<&Estimator> {
         match &self.torque {
             Some(t) if t.active() => Some(t.chosen_estimator()),
             _ => self.estimator.as_ref(),
+        }
+    }
+
+    /// The clearance posterior the report reads: the torque channel's once it has used an
+    /// event (with chassis variants, the mixture over its tables weighed by how well the
+    /// events fit each: [`posterior`]), else the angle estimator's.
+    pub fn posterior(&self) -> Option<posterior::Posterior<'_>> {
+        match &self.torque {
+            Some(t) if t.active() => Some(t.posterior()),
+            _ => self.estimator.as_ref().map(posterior::Posterior::single),
         }
     }
 
@@ -1158,9 +1192,10 @@ impl Observer {
     pub fn report(&self) -> Report {
         let a = &self.cfg.alerts;
         let active = self.active_estimator();
-        let summary = active
-            .filter(|e| e.events_used() > 0)
-            .map(|e| (e.summary(), e.prob_above(a.clearance_mm)));
+        let summary = self
+            .posterior()
+            .map(|p| (p.summary(), p.prob_above(a.clearance_mm)))
+            .filter(|(s, _)| s.events_used > 0);
         let rej = self.rejections();
         let why = || self.explain_rejections(true);
         let (clearance_mm, interval_mm, detectable, below_mm, verdict) = match summary {
@@ -1220,10 +1255,17 @@ impl Observer {
         let verdict = match &self.torque {
             Some(t) if t.active() => match torque_tables.iter().find(|e| e.chosen) {
                 Some(e) if e.name != NOMINAL_TABLE => format!(
-                    "{verdict} from the steering torque, read with the torque table for {} \
-                     (probability {:.2} among the profile's {} torque tables, by how well the \
-                     events fit each)",
+                    "{verdict} from the steering torque, read mostly with the torque table for \
+                     {} (probability {:.2} among the profile's {} torque tables, by how well \
+                     the events fit each; the estimate weighs every table by it)",
                     e.name,
+                    e.weight.unwrap_or(f64::NAN),
+                    torque_tables.len()
+                ),
+                Some(e) if e.weight.is_some_and(|w| w < MIXED_WEIGHT) => format!(
+                    "{verdict} from the steering torque, read mostly with the profile's nominal \
+                     torque table (probability {:.2} among its {} torque tables, by how well \
+                     the events fit each; the estimate weighs every table by it)",
                     e.weight.unwrap_or(f64::NAN),
                     torque_tables.len()
                 ),

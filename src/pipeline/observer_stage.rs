@@ -645,7 +645,7 @@ impl EventStage for ObserverStage {
     }
 
     fn estimate(&self) -> Option<Estimate> {
-        let est = self.obs.active_estimator()?;
+        let est = self.obs.posterior()?;
         let s = est.summary();
         let used = s.events_used > 0;
         let fit = if used {

@@ -98,7 +98,8 @@ pub struct ChassisSection {
     /// may have and that the nuisance prior does not cover (a scrub radius turns the brake
     /// force into a steady kingpin moment, MODEL.md §14, which the nominal table would read as
     /// wear). Each names a torque table built on the chassis with that change; every estimate
-    /// feeds all of the profile's torque tables and reads the one the vehicle's events fit best.
+    /// feeds all of the profile's torque tables and weighs their readings by how well the
+    /// vehicle's events fit each ([`crate::observer::posterior`]).
     #[serde(default)]
     pub variants: Vec<ChassisVariant>,
 }
