@@ -1,5 +1,5 @@
 """Fleet estimate error by true clearance, and how much of it sits in vehicles whose joints
-hardly touch (docs/ACCURACY.md, sixth session).
+hardly touch (docs/ACCURACY.md, "Tried, not kept: quiet events, table size and a finer sensor").
 
 Reads `firmware-sim fleet --json FLEET.json --work-dir DIR` outputs (DIR holds each vehicle's
 `fleet_SEED.truth.json`, whose events give the joints' contact fraction, MODEL.md §4) and prints:

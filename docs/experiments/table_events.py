@@ -1,5 +1,5 @@
-"""Two looks at a table build's `shimmy calibrate --events-out` file (docs/ACCURACY.md, sixth
-session).
+"""Two looks at a table build's `shimmy calibrate --events-out` file (docs/ACCURACY.md, "Tried, not
+kept: quiet events, table size and a finer sensor").
 
   subset EV.json N OUT.json  the events of the first N drawn vehicles, in job order, with their
                              seeds renumbered to the smaller grid's jobs, so that
