@@ -454,30 +454,9 @@ impl TorqueChannel {
         }
     }
 
-    /// The clearance posterior over the tables: each table's posterior weighed by its
-    /// posterior probability ([`posterior`]); the nominal's alone while no table has an evidence.
-    fn posterior(&self) -> posterior::Posterior<'_> {
-        let lw: Vec<Option<f64>> = self.ln_weights().collect();
-        let max = lw
-            .iter()
-            .flatten()
-            .copied()
-            .fold(f64::NEG_INFINITY, f64::max);
-        posterior::Posterior::mixture(
-            self.all()
-                .zip(lw)
-                .filter_map(|((_, e, _), l)| Some(((l? - max).exp(), e))),
-        )
-        .unwrap_or_else(|| posterior::Posterior::single(self.chosen_estimator()))
-    }
-
-    /// Every table's evidence and its weight (softmax of the ln evidence: the posterior
-    /// probability of each alternative under equal prior odds); empty without alternatives.
-    fn evidence(&self) -> Vec<TableEvidence> {
-        if self.alternatives.is_empty() {
-            return Vec::new();
-        }
-        let chosen = self.chosen();
+    /// Each table's posterior probability (prior times tempered evidence, normalised over the
+    /// tables that have an evidence), `None` for a table without one yet.
+    fn weights(&self) -> Vec<Option<f64>> {
         let lw: Vec<Option<f64>> = self.ln_weights().collect();
         let max = lw
             .iter()
@@ -485,14 +464,37 @@ impl TorqueChannel {
             .copied()
             .fold(f64::NEG_INFINITY, f64::max);
         let z: f64 = lw.iter().flatten().map(|l| (l - max).exp()).sum();
+        lw.into_iter()
+            .map(|l| l.map(|l| (l - max).exp() / z))
+            .collect()
+    }
+
+    /// The clearance posterior over the tables: each table's posterior weighed by its
+    /// posterior probability ([`posterior`]); the nominal's alone while no table has an evidence.
+    fn posterior(&self) -> posterior::Posterior<'_> {
+        posterior::Posterior::mixture(
+            self.all()
+                .zip(self.weights())
+                .filter_map(|((_, e, _), w)| Some((w?, e))),
+        )
+        .unwrap_or_else(|| posterior::Posterior::single(self.chosen_estimator()))
+    }
+
+    /// Every table's evidence and its weight (its posterior probability among the tables:
+    /// prior times tempered evidence, normalised); empty without alternatives.
+    fn evidence(&self) -> Vec<TableEvidence> {
+        if self.alternatives.is_empty() {
+            return Vec::new();
+        }
+        let chosen = self.chosen();
         self.all()
-            .zip(lw)
+            .zip(self.weights())
             .enumerate()
-            .map(|(i, ((name, e, ln_prior), l))| TableEvidence {
+            .map(|(i, ((name, e, ln_prior), w))| TableEvidence {
                 name: name.to_string(),
                 prior: ln_prior.exp(),
                 ln_evidence: e.ln_evidence().map(|l| l[0]).filter(|l| l.is_finite()),
-                weight: l.map(|l| (l - max).exp() / z),
+                weight: w,
                 chosen: i == chosen,
             })
             .collect()
