@@ -289,6 +289,28 @@ pub struct Summary {
     pub events_used: u32,
 }
 
+impl Summary {
+    /// A posterior's summary from its 5 %, 50 % and 95 % quantiles (mm): detectable when the
+    /// 5 % quantile is above `detection_limit_mm`, else "below" the 95 % quantile but never
+    /// below the limit.
+    pub fn from_quantiles(
+        q05_mm: f64,
+        median_mm: f64,
+        q95_mm: f64,
+        detection_limit_mm: f64,
+        events_used: u32,
+    ) -> Summary {
+        Summary {
+            median_mm,
+            q05_mm,
+            q95_mm,
+            detectable: q05_mm > detection_limit_mm,
+            below_mm: q95_mm.max(detection_limit_mm),
+            events_used,
+        }
+    }
+}
+
 /// The running posterior.
 pub struct Estimator {
     cfg: EstimatorConfig,
@@ -735,16 +757,13 @@ impl Estimator {
     }
 
     pub fn summary(&self) -> Summary {
-        let q05 = self.quantile_mm(0.05);
-        let q95 = self.quantile_mm(0.95);
-        Summary {
-            median_mm: self.quantile_mm(0.5),
-            q05_mm: q05,
-            q95_mm: q95,
-            detectable: q05 > self.cfg.detection_limit_mm,
-            below_mm: q95.max(self.cfg.detection_limit_mm),
-            events_used: self.events_used,
-        }
+        Summary::from_quantiles(
+            self.quantile_mm(0.05),
+            self.quantile_mm(0.5),
+            self.quantile_mm(0.95),
+            self.cfg.detection_limit_mm,
+            self.events_used,
+        )
     }
 
     pub fn events_used(&self) -> u32 {

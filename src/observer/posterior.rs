@@ -65,7 +65,7 @@ impl<'a> Posterior<'a> {
         Some(Posterior { parts })
     }
 
-    /// The most probable estimator (the one the goodness-of-fit check reads).
+    /// The most probable estimator (its detection limit is the summary's).
     pub fn leading(&self) -> &'a Estimator {
         self.parts[0].1
     }
@@ -99,7 +99,7 @@ impl<'a> Posterior<'a> {
             .parts
             .iter()
             .map(|(_, e)| e.support_mm())
-            .fold((f64::INFINITY, 0.0f64), |(lo, hi), (a, b)| {
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (a, b)| {
                 (lo.min(a.ln()), hi.max(b.ln()))
             });
         let cdf = |x: f64| 1.0 - self.prob_above(x.exp());
@@ -122,21 +122,16 @@ impl<'a> Posterior<'a> {
         if self.parts.len() == 1 {
             return lead.summary();
         }
-        let q05 = self.quantile_mm(0.05);
-        let q95 = self.quantile_mm(0.95);
-        let limit = lead.config().detection_limit_mm;
-        Summary {
-            median_mm: self.quantile_mm(0.5),
-            q05_mm: q05,
-            q95_mm: q95,
-            detectable: q05 > limit,
-            below_mm: q95.max(limit),
-            events_used: self
-                .parts
+        Summary::from_quantiles(
+            self.quantile_mm(0.05),
+            self.quantile_mm(0.5),
+            self.quantile_mm(0.95),
+            lead.config().detection_limit_mm,
+            self.parts
                 .iter()
                 .map(|(_, e)| e.events_used())
                 .max()
                 .unwrap_or(0),
-        }
+        )
     }
 }
