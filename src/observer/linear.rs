@@ -191,9 +191,6 @@ pub fn parse_terms(s: &str) -> anyhow::Result<Vec<Term>> {
         .collect()
 }
 
-/// The law `shimmy calibrate` fits by default: intercept and deceleration; the seven
-/// coordinates; c_s to the cube and its products with the others; ψ and ψ² and ψ's products
-/// with c_s and the unbalance (docs/ACCURACY.md says how this was chosen).
 /// The terms a table of the torsion-bar torque adds to [`DEFAULT_TERMS`] (`shimmy calibrate
 /// --signal torque`): the column's rim inertia, torsion-bar stiffness and damping (x7-x9). The
 /// torque reads the torsion bar's twist times k_tb, so k_tb alone moves it by a factor 3 over
@@ -201,6 +198,9 @@ pub fn parse_terms(s: &str) -> anyhow::Result<Vec<Term>> {
 /// others'.
 pub const COLUMN_TERMS: &str = "x7,x8,x9,x1*x8";
 
+/// The law `shimmy calibrate` fits by default: intercept and deceleration; the seven
+/// coordinates; c_s to the cube and its products with the others; ψ and ψ² and ψ's products
+/// with c_s and the unbalance (docs/ACCURACY.md says how this was chosen).
 pub const DEFAULT_TERMS: &str = "1,d,x0,x1,x2,x3,x4,x5,x6,x1^2,x1^3,x0*x1,x1*x2,x1*x3,x1*x4,\
                                  x1*x5,x1*x6,u,u^2,x1*u,x5*u";
 
