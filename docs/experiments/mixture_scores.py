@@ -8,6 +8,9 @@ one read", from `firmware-sim fleet --json` outputs.
   bias FLEET.json [...]
       pooled: per band of true clearance, the median of ln(estimate / truth), the share with
       P(c > 0.1 mm) >= 0.7 at the end of the log, and the 90 % coverage.
+  reliability FLEET.json [...]
+      pooled: per band of the reported P(c > 0.1 mm), how many vehicles, their mean P and the
+      share whose true clearance is above 0.1 mm (a calibrated P has the two equal).
   targets matched|mismatch FLEET.json [...] [-- matched|mismatch FLEET.json ...]
       pooled worn / false / band alerts per group, and the fleets that miss a target (matched:
       worn >= 95 %, false <= 2 %; mismatch: false <= 5 %, band <= 25 %).
@@ -56,6 +59,17 @@ def bias(paths):
               f"{statistics.median(ln):+.3f}, P >= 0.7 {alert:.2f}, coverage {cov:.2f}")
 
 
+def reliability(paths):
+    rows = [(v["p_clearance_above_threshold"], v["clearance_true_mm"]) for p in paths for v in vehicles(p)]
+    edges = [0.0, 0.05, 0.2, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.97, 1.01]
+    print("P(c > 0.1 mm) | vehicles | mean P | share with c > 0.1 mm | with c <= 0.07 mm")
+    for lo, hi in zip(edges, edges[1:]):
+        part = [r for r in rows if lo <= r[0] < hi]
+        if part:
+            print(f"{lo:.2f}-{min(hi, 1.0):.2f} | {len(part)} | {statistics.mean(r[0] for r in part):.2f} | "
+                  f"{sum(r[1] > 0.1 for r in part) / len(part):.2f} | {sum(r[1] <= 0.07 for r in part)}")
+
+
 def targets(args):
     groups, kind = {"matched": [], "mismatch": []}, None
     for a in args:
@@ -86,6 +100,6 @@ def targets(args):
 
 
 if __name__ == "__main__":
-    if len(sys.argv) < 3 or sys.argv[1] not in ("widths", "bias", "targets"):
+    if len(sys.argv) < 3 or sys.argv[1] not in ("widths", "bias", "reliability", "targets"):
         sys.exit(__doc__)
-    {"widths": widths, "bias": bias, "targets": targets}[sys.argv[1]](sys.argv[2:])
+    {"widths": widths, "bias": bias, "reliability": reliability, "targets": targets}[sys.argv[1]](sys.argv[2:])
