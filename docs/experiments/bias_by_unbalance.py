@@ -31,11 +31,11 @@ def main(args):
             lo, hi = v["interval_mm"]
             rows.append((u / NOMINAL_KGM, v["clearance_true_mm"], v["median_mm"],
                          v["clearance_alert"], math.log(hi / lo)))
+    med = lambda part: statistics.median(math.log(r[2] / r[1]) for r in part) if part else float("nan")
     print("unbalance factor | c <= 0.1 mm: n, median ln(est/true), alerted | c >= 0.15 mm: n, median")
     for lo, hi in BANDS:
         small = [r for r in rows if lo <= r[0] < hi and r[1] <= 0.1]
         worn = [r for r in rows if lo <= r[0] < hi and r[1] >= 0.15]
-        med = lambda part: statistics.median(math.log(r[2] / r[1]) for r in part) if part else float("nan")
         print(f"{lo:.1f}-{min(hi, 2.0):.1f} | {len(small)}, {med(small):+.2f}, "
               f"{sum(r[3] for r in small)} | {len(worn)}, {med(worn):+.2f}")
     false = sorted((round(r[0], 2), round(r[1], 3)) for r in rows if r[1] <= 0.07 and r[3])
@@ -46,8 +46,7 @@ def main(args):
             part = [r for r in rows if lo <= r[0] < hi and clo < r[1] <= chi]
             if part:
                 print(f"{lo:.1f}-{min(hi, 2.0):.1f} | {clo:.2f}-{min(chi, 1.0):.2f} mm | {len(part)}, "
-                      f"{statistics.median(r[4] for r in part):.2f}, "
-                      f"{statistics.median(math.log(r[2] / r[1]) for r in part):+.2f}")
+                      f"{statistics.median(r[4] for r in part):.2f}, {med(part):+.2f}")
 
 
 if __name__ == "__main__":
