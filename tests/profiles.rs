@@ -14,6 +14,19 @@ const SHIPPED: [&str; 6] = [
     "hyundai_kia",
 ];
 
+/// The law (`LinearModel::terms`) of a torque table as written, `x5^2` and all.
+fn terms(t: &shimmy::observer::table::ResponseTable) -> Vec<String> {
+    let m = t.linear.as_ref().expect("a torque table carries its nuisance model");
+    m.terms.iter().map(|x| x.to_string()).collect()
+}
+
+/// What `shimmy calibrate --signal torque` fits by default.
+fn torque_law() -> Vec<String> {
+    use shimmy::observer::linear::{parse_terms, COLUMN_TERMS, DEFAULT_TERMS};
+    let all = parse_terms(&format!("{DEFAULT_TERMS},{COLUMN_TERMS}")).unwrap();
+    all.iter().map(|x| x.to_string()).collect()
+}
+
 fn repo(rel: &str) -> std::path::PathBuf {
     std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(rel)
 }
@@ -57,13 +70,19 @@ fn every_shipped_profile_loads_and_its_mapping_fits_its_dbc() {
                 .expect("[sensors.steer_torque]");
             assert_eq!(tt.sensor.rate_hz, sent.rate_hz, "{name}");
             assert_eq!(tt.clearance_mm, t.clearance_mm, "{name}");
-            // Its chassis variants' tables load, each for the same torque sensor.
+            // Its chassis variants' tables load, each for the same torque sensor, and each
+            // (the nominal one too) fits the law `shimmy calibrate --signal torque` fits by
+            // default, so that the command in the profile's comment rebuilds it and one
+            // mixture never mixes two laws.
+            let law = torque_law();
+            assert_eq!(terms(&tt), law, "{name}: nominal torque table");
             let alts = p
                 .load_torque_alternatives(&tt)
                 .unwrap_or_else(|e| panic!("{name}: {e:#}"));
             assert_eq!(alts.len(), p.file.chassis.variants.len(), "{name}");
             for a in &alts {
                 assert_eq!(a.table.sensor, tt.sensor, "{name}: {}", a.name);
+                assert_eq!(terms(&a.table), law, "{name}: {}", a.name);
             }
         }
     }

@@ -195,8 +195,11 @@ pub fn parse_terms(s: &str) -> anyhow::Result<Vec<Term>> {
 /// --signal torque`): the column's rim inertia, torsion-bar stiffness and damping (x7-x9). The
 /// torque reads the torsion bar's twist times k_tb, so k_tb alone moves it by a factor 3 over
 /// the published range (docs/COLUMN.md); with its slope set by the kingpin damping like the
-/// others'.
-pub const COLUMN_TERMS: &str = "x7,x8,x9,x1*x8";
+/// others'. And the unbalance squared: near the rattle's onset (0.04-0.09 mm) the torque's
+/// ln RMS bends in the unbalance, and a law straight in it leaves a between-vehicle misfit
+/// that reads a quiet car as worn (docs/ACCURACY.md, "Quiet cars"). With `x5^2` the law is not
+/// affine in the unbalance, so the estimator integrates it on a grid ([`LinearModel::gridded`]).
+pub const COLUMN_TERMS: &str = "x7,x8,x9,x1*x8,x5^2";
 
 /// The law `shimmy calibrate` fits by default: intercept and deceleration; the seven
 /// coordinates; c_s to the cube and its products with the others; ψ and ψ² and ψ's products

@@ -214,7 +214,7 @@ pub struct Args {
     /// nuisance coordinates k_s, c_s, k_t, k_g, c_g, unbalance, road noise; x7-x9 the §15
     /// column's J_sw, k_tb, c_tb; u, the cosine of the wheels' unbalance phase difference), e.g.
     /// "1,d,x0,x1,x1^2,u,x5*u". The first must be "1". Default with `--signal torque`: these
-    /// and "x7,x8,x9,x1*x8". See src/observer/linear.rs.
+    /// and "x7,x8,x9,x1*x8,x5^2". See src/observer/linear.rs.
     #[arg(long, default_value = DEFAULT_TERMS, value_name = "TERMS")]
     pub terms: String,
 
@@ -833,7 +833,7 @@ fn grid_from(args: &Args, ranges: NuisanceRanges) -> anyhow::Result<Grid> {
         } else {
             ranges
         },
-        // A torque table's default law adds the column's coordinates.
+        // A torque table's default law adds the column's coordinates and the unbalance squared.
         terms: if args.signal == "torque" && args.terms == DEFAULT_TERMS {
             parse_terms(&format!("{DEFAULT_TERMS},{COLUMN_TERMS}"))
         } else {
