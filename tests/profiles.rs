@@ -16,7 +16,10 @@ const SHIPPED: [&str; 6] = [
 
 /// The law (`LinearModel::terms`) of a torque table as written, `x5^2` and all.
 fn terms(t: &shimmy::observer::table::ResponseTable) -> Vec<String> {
-    let m = t.linear.as_ref().expect("a torque table carries its nuisance model");
+    let m = t
+        .linear
+        .as_ref()
+        .expect("a torque table carries its nuisance model");
     m.terms.iter().map(|x| x.to_string()).collect()
 }
 
