@@ -16,6 +16,9 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 use shimmy::journal::Reader;
 
+#[path = "../support/outside_cargo.rs"]
+mod outside_cargo;
+
 pub fn workspace() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
@@ -36,7 +39,9 @@ pub fn shimmyd() -> PathBuf {
 /// 1. `SHIMMY_FWSIM_BIN` when set and not empty (tests/vcan/vm.sh sets it to its static build);
 /// 2. else built now with the cargo, target directory and profile that built this test (a
 ///    no-op when it is up to date, as after `cargo test --workspace`), so a test never runs a
-///    stale simulator;
+///    stale simulator; without cargo's test variables ([`outside_cargo`]: seen by this inner
+///    build, they made ring's build script rerun and ring, rustls and both packages rebuild,
+///    and then once more for the next build outside a test);
 /// 3. else (no cargo: a copied test executable) `firmware-sim` on the `PATH`.
 pub fn firmware_sim() -> PathBuf {
     static BIN: OnceLock<PathBuf> = OnceLock::new();
@@ -65,7 +70,7 @@ pub fn firmware_sim() -> PathBuf {
             Some(p) => p,
             None => "dev",
         };
-        let mut cmd = Command::new(&cargo);
+        let mut cmd = outside_cargo::outside_cargo(Command::new(&cargo));
         cmd.current_dir(workspace())
             .args([
                 "build",

@@ -1,6 +1,6 @@
 //! A command a test runs that starts its own cargo build (the Python wheel, the fuzz targets,
-//! the VM's static binaries, the aarch64 subset, the Debian package), freed of the variables
-//! cargo sets for the test itself.
+//! the VM's static binaries, the aarch64 subset, the Debian package, the firmware-sim the
+//! end-to-end tests run), freed of the variables cargo sets for the test itself.
 //!
 //! What it is for: `.ci/run` builds those artifacts before `cargo test` runs; seen by the inner
 //! build, cargo's test variables (`CARGO_*` but `CARGO_HOME`, and `OUT_DIR`, which cargo sets
