@@ -2,6 +2,7 @@
 //! lookup by name, alias and path finds it.
 
 use shimmy::dbc::Database;
+use shimmy::observer::linear::{torque_terms, Term};
 use shimmy::profile::{self, Profile};
 use shimmy::signals::Mapper;
 
@@ -14,20 +15,13 @@ const SHIPPED: [&str; 6] = [
     "hyundai_kia",
 ];
 
-/// The law (`LinearModel::terms`) of a torque table as written, `x5^2` and all.
-fn terms(t: &shimmy::observer::table::ResponseTable) -> Vec<String> {
+/// The law (`LinearModel::terms`) of a torque table, `x5^2` and all.
+fn terms(t: &shimmy::observer::table::ResponseTable) -> &[Term] {
     let m = t
         .linear
         .as_ref()
         .expect("a torque table carries its nuisance model");
-    m.terms.iter().map(|x| x.to_string()).collect()
-}
-
-/// What `shimmy calibrate --signal torque` fits by default.
-fn torque_law() -> Vec<String> {
-    use shimmy::observer::linear::{parse_terms, COLUMN_TERMS, DEFAULT_TERMS};
-    let all = parse_terms(&format!("{DEFAULT_TERMS},{COLUMN_TERMS}")).unwrap();
-    all.iter().map(|x| x.to_string()).collect()
+    &m.terms
 }
 
 fn repo(rel: &str) -> std::path::PathBuf {
@@ -77,7 +71,7 @@ fn every_shipped_profile_loads_and_its_mapping_fits_its_dbc() {
             // (the nominal one too) fits the law `shimmy calibrate --signal torque` fits by
             // default, so that the command in the profile's comment rebuilds it and one
             // mixture never mixes two laws.
-            let law = torque_law();
+            let law = torque_terms().unwrap();
             assert_eq!(terms(&tt), law, "{name}: nominal torque table");
             let alts = p
                 .load_torque_alternatives(&tt)

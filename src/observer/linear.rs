@@ -201,6 +201,12 @@ pub fn parse_terms(s: &str) -> anyhow::Result<Vec<Term>> {
 /// affine in the unbalance, so the estimator integrates it on a grid ([`LinearModel::gridded`]).
 pub const COLUMN_TERMS: &str = "x7,x8,x9,x1*x8,x5^2";
 
+/// The law `shimmy calibrate --signal torque` fits by default: [`DEFAULT_TERMS`], then
+/// [`COLUMN_TERMS`].
+pub fn torque_terms() -> anyhow::Result<Vec<Term>> {
+    parse_terms(&format!("{DEFAULT_TERMS},{COLUMN_TERMS}"))
+}
+
 /// The law `shimmy calibrate` fits by default: intercept and deceleration; the seven
 /// coordinates; c_s to the cube and its products with the others; ψ and ψ² and ψ's products
 /// with c_s and the unbalance (docs/ACCURACY.md says how this was chosen).

@@ -15,7 +15,7 @@ use crate::analysis::sweep::default_threads;
 use crate::events::median_in_place;
 use crate::model::VehicleParams;
 use crate::observer::emulate::{coords, draw_coords, emulate_cells, RawEvent, N_COORDS};
-use crate::observer::linear::{parse_terms, Term, COLUMN_TERMS, DEFAULT_TERMS};
+use crate::observer::linear::{parse_terms, torque_terms, Term, DEFAULT_TERMS};
 use crate::observer::sensor::SensorModel;
 use crate::observer::simulate::{perturb_vehicle, EventShape, NuisanceRanges};
 use crate::observer::table::{vehicle_hash, Cell, ResponseTable, FORMAT};
@@ -835,7 +835,7 @@ fn grid_from(args: &Args, ranges: NuisanceRanges) -> anyhow::Result<Grid> {
         },
         // A torque table's default law adds the column's coordinates and the unbalance squared.
         terms: if args.signal == "torque" && args.terms == DEFAULT_TERMS {
-            parse_terms(&format!("{DEFAULT_TERMS},{COLUMN_TERMS}"))
+            torque_terms()
         } else {
             parse_terms(&args.terms)
         }
