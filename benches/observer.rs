@@ -1,7 +1,8 @@
 //! Cost of the clearance observer per braking event (issue 5: target under 20 ms on one core
 //! once the response table is built): the detector over one event's samples, the feature
 //! extraction (band-pass, peak, RMS, noise correction) and the posterior update, on the
-//! shipped table (config/vehicles/shimmy_reference/table.json) with the default method "linear", and the
+//! shipped table (config/vehicles/shimmy_reference/table.json) with the default method "linear", the
+//! update alone on the RAV4 torque table (whose law grids the unbalance too), and the
 //! method "mixture"'s update on a synthetic table of 12 clearances x 40 nuisance vehicles x 6
 //! speeds x 2 decelerations.
 //!
@@ -78,6 +79,16 @@ fn bench(c: &mut Criterion) {
         c,
         "observer: posterior update only, linear (45 clearances x 9 damping points; phase: 8 fixed + 16 per event)",
         t,
+        EstimatorConfig::default(),
+    );
+    let torque = ResponseTable::load(std::path::Path::new(
+        "config/vehicles/toyota_rav4/table_torque.json",
+    ))
+    .expect("the shipped RAV4 torque table (run from the package root)");
+    update_bench(
+        c,
+        "observer: posterior update only, linear, RAV4 torque table (unbalance gridded: 45 clearances x 9 damping x 7 unbalance; phase: 8 fixed + 16 per event)",
+        &torque,
         EstimatorConfig::default(),
     );
     update_bench(

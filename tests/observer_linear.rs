@@ -99,7 +99,7 @@ fn table_with(with_linear: bool, phase: bool) -> ResponseTable {
         let within = [[v, 0.8 * v, 0.0], [0.8 * v, v, 0.0], [0.0, 0.0, v]];
         let m = MISFIT_STD * MISFIT_STD;
         let between = [[m, 0.0, 0.0], [0.0, m, 0.0], [0.0, 0.0, m]];
-        t.linear = Some(LinearModel {
+        t.linear = Some(std::sync::Arc::new(LinearModel {
             vehicles: 40,
             terms: parse_terms(if phase {
                 "1,d,x0,x1,x2,x3,x4,x5,x6,u"
@@ -113,7 +113,7 @@ fn table_with(with_linear: bool, phase: bool) -> ResponseTable {
             total_corr: vec![0.5; CLEARANCES],
             within: vec![within; CLEARANCES],
             between: vec![between; CLEARANCES],
-        });
+        }));
     }
     t.validate().unwrap();
     t

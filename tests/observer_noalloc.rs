@@ -1,8 +1,9 @@
 //! The clearance observer's hot paths allocate nothing per frame (issue 5: "everything runs
 //! without allocation per frame and within bounded memory on the gateway"), counted with a
 //! global allocator wrapper:
-//! * the estimator's update, summary and alert probabilities on the shipped table (method
-//!   "linear", both wheel-phase hypotheses) allocate nothing at all;
+//! * the estimator's update, summary and alert probabilities on the shipped tables (method
+//!   "linear", both wheel-phase hypotheses; the reference angle table, and the RAV4 torque
+//!   table whose law grids the unbalance) allocate nothing at all;
 //! * the observer allocates nothing per frame outside braking events, and per braking event a
 //!   fixed number of times that does not grow with the event's length in frames (4 on
 //!   2026-12-02, for stops of 827 and 1692 samples).
@@ -21,40 +22,50 @@ use braking_stream::drive;
 use counting_alloc::counted;
 
 fn shipped_table() -> ResponseTable {
-    ResponseTable::load(
-        &Path::new(env!("CARGO_MANIFEST_DIR")).join("config/vehicles/shimmy_reference/table.json"),
-    )
-    .expect("the shipped table")
+    load("config/vehicles/shimmy_reference/table.json")
+}
+
+fn load(path: &str) -> ResponseTable {
+    ResponseTable::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join(path))
+        .unwrap_or_else(|e| panic!("the shipped table {path}: {e:#}"))
 }
 
 #[test]
 fn estimator_updates_and_summaries_do_not_allocate() {
-    let table = shipped_table();
-    let cfg = EstimatorConfig::default();
-    assert_eq!(cfg.method, "linear");
-    assert_eq!(cfg.phase, "either");
-    let mut est = Estimator::new(&table, cfg).unwrap();
-    let ((), n) = counted(|| {
-        for k in 0..30 {
-            let v0 = 30.0 + 70.0 * (k as f64 * 0.37).fract();
-            let decel = 0.3 + 0.5 * (k as f64 * 0.61).fract();
-            est.update_event(
-                &table,
-                0.04 + 0.002 * k as f64,
-                0.15,
-                Some(0.03),
-                v0,
-                decel,
-                1000.0 * k as f64,
-            );
-            let s = est.summary();
-            assert!(s.q05_mm <= s.median_mm && s.median_mm <= s.q95_mm);
-            assert!((0.0..=1.0).contains(&est.prob_above(0.1)));
-            let _ = est.phase_fixed_probability();
-        }
-    });
-    assert_eq!(est.events_used(), 30);
-    assert_eq!(n, 0, "the estimator allocated {n} times over 30 events");
+    for path in [
+        "config/vehicles/shimmy_reference/table.json",
+        "config/vehicles/toyota_rav4/table_torque.json",
+    ] {
+        let table = load(path);
+        let cfg = EstimatorConfig::default();
+        assert_eq!(cfg.method, "linear");
+        assert_eq!(cfg.phase, "either");
+        let mut est = Estimator::new(&table, cfg).unwrap();
+        let ((), n) = counted(|| {
+            for k in 0..30 {
+                let v0 = 30.0 + 70.0 * (k as f64 * 0.37).fract();
+                let decel = 0.3 + 0.5 * (k as f64 * 0.61).fract();
+                est.update_event(
+                    &table,
+                    0.04 + 0.002 * k as f64,
+                    0.15,
+                    Some(0.03),
+                    v0,
+                    decel,
+                    1000.0 * k as f64,
+                );
+                let s = est.summary();
+                assert!(s.q05_mm <= s.median_mm && s.median_mm <= s.q95_mm);
+                assert!((0.0..=1.0).contains(&est.prob_above(0.1)));
+                let _ = est.phase_fixed_probability();
+            }
+        });
+        assert_eq!(est.events_used(), 30, "{path}");
+        assert_eq!(
+            n, 0,
+            "{path}: the estimator allocated {n} times over 30 events"
+        );
+    }
 }
 
 #[test]

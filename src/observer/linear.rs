@@ -623,6 +623,26 @@ impl LinearModel {
         let n = basis.n;
         std::array::from_fn(|k| dot(&basis.value[..n], &coefs.c[k][..n]))
     }
+
+    /// The feature means of [`Self::mean_with`] split by class of term: `out[m][f]` sums
+    /// coefficient × term value over the terms t with `class[t] == m`; a term whose class is
+    /// `out.len()` or more is left out. No allocation.
+    pub fn means_by_class(
+        &self,
+        coefs: &Coefs,
+        basis: &Basis,
+        class: &[usize],
+        out: &mut [[f64; N_FEAT]],
+    ) {
+        out.iter_mut().for_each(|o| *o = [0.0; N_FEAT]);
+        for (t, &m) in class.iter().enumerate().take(basis.n) {
+            if let Some(o) = out.get_mut(m) {
+                for (f, of) in o.iter_mut().enumerate() {
+                    *of += coefs.c[f][t] * basis.value[t];
+                }
+            }
+        }
+    }
 }
 
 /// Interpolated coefficients of the three features ([`LinearModel::coef_interp`]).

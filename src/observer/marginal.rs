@@ -59,11 +59,26 @@
 //! What it is not: robust to outlier events (the Gaussian has no outlier floor), or a model of
 //! the physics (the table's model stands for it).
 //!
-//! Memory: the statistics are fixed-size per (clearance, grid point) (about 100 numbers),
-//! allocated with the scratch of one event's term values in [`LinearPosterior::new`]; updates
-//! and summaries do not allocate.
+//! Memory and cost: the statistics are sums over events, and most of them are shared between
+//! grid points (`Grid`). A point's slopes B depend only on the gridded variables that share a
+//! term with a closed-form coordinate (ξ₁ for the default laws), and its predicted means on the
+//! other gridded variables only through a few monomials φ of them (for the torque law x5, ψ,
+//! ψ², x5·ψ, x5²): a = α + M·φ. With Δ fixed per vehicle the events' covariance depends on the
+//! clearance only, so per clearance and group of points that agree on ξ₁ the sums P (the upper
+//! triangle of its live rows), Σ ln det S, h₀, G, s₀, u and Q are kept (`lin_len`), and each
+//! point's h and s follow from its φ exactly: h = h₀ − G·φ, s = s₀ − 2uᵀφ + φᵀQφ. P is
+//! factored once per group. With Δ new per event the covariance holds the spread over Δ, which
+//! depends on every gridded variable, so those points keep their own. For the torque tables'
+//! law (x5² gridded on 7 points: 9 × 7 × 8 points with Δ fixed, 9 × 7 without, 45 clearances)
+//! that is 2.3 MB per table, of which 1.8 MB are the Δ-per-event points' (one P of every point
+//! per clearance each: 32 MB before); for the angle law 1.7 MB. The result is the per-point
+//! sums' to rounding (the unit tests below compare them). All of it and the scratch of one
+//! event's terms are allocated in [`LinearPosterior::new`] (the baseline's at its first
+//! event); updates and summaries do not allocate.
 
-use nalgebra::{Matrix3, SMatrix, SVector};
+use std::sync::Arc;
+
+use nalgebra::{Cholesky, Const, Matrix3, SMatrix, SVector, Vector3};
 
 use super::emulate::{phase_quadrature, EVENT_PHASES};
 use super::estimator::EstimatorConfig;
@@ -73,78 +88,494 @@ use super::table::{bracket, ResponseTable};
 const NX: usize = N_LIN + N_FEAT;
 type MatX = SMatrix<f64, NX, NX>;
 type VecX = SVector<f64, NX>;
+type Factor = Cholesky<f64, Const<NX>>;
+/// The slopes of the features in the closed-form coordinates at one event and grid point.
+type Slopes = [[f64; N_LIN]; N_FEAT];
 
 /// Variance of the uniform [−1, 1] prior of each nuisance coordinate.
 const COORD_VAR: f64 = 1.0 / 3.0;
 
-#[derive(Clone, Copy)]
-struct Stats {
-    p: MatX,
-    h: VecX,
-    s: f64,
-    ld: f64,
+/// P += Hᵀ W H for one event with slopes `b` and inverse covariance `w` (masked), H = [B | I₃],
+/// on the live indices `live` of x: P is stored as the upper triangle of its live rows and
+/// columns, row by row (the others are 0: closed-form coordinates no term holds, and unused
+/// slots).
+fn quad_add(p: &mut [f64], live: &[usize], b: &Slopes, w: &Matrix3<f64>) {
+    let mut hm = SMatrix::<f64, N_FEAT, NX>::zeros();
+    for f in 0..N_FEAT {
+        for j in 0..N_LIN {
+            hm[(f, j)] = b[f][j];
+        }
+        hm[(f, N_LIN + f)] = 1.0;
+    }
+    let m = hm.transpose() * w * hm;
+    let mut k = 0;
+    for (a, &i) in live.iter().enumerate() {
+        for &j in &live[a..] {
+            p[k] += m[(i, j)];
+            k += 1;
+        }
+    }
 }
 
-impl Stats {
-    fn zero() -> Stats {
-        Stats {
-            p: MatX::zeros(),
-            h: VecX::zeros(),
-            s: 0.0,
-            ld: 0.0,
+/// A = `lam` + P (+ the `other` statistics' P), from the packed triangles of [`quad_add`].
+fn precision(lam: &MatX, live: &[usize], p: &[f64], other: Option<&[f64]>) -> MatX {
+    let mut a = *lam;
+    let mut k = 0;
+    for (n, &i) in live.iter().enumerate() {
+        for &j in &live[n..] {
+            let v = p[k] + other.map_or(0.0, |o| o[k]);
+            a[(i, j)] += v;
+            if j != i {
+                a[(j, i)] += v;
+            }
+            k += 1;
+        }
+    }
+    a
+}
+
+/// Length of a group's statistics that depend on the points' predictions a = α + M·φ (φ the
+/// values of the group's `l` monomials at the point; [`Grid`]): h₀ = Σ Hᵀ S⁻¹ r₀ (r₀ = z − α),
+/// G = Σ Hᵀ S⁻¹ M (NX × l, column by column), s₀ = Σ r₀ᵀ S⁻¹ r₀, u = Σ Mᵀ S⁻¹ r₀ and
+/// Q = Σ Mᵀ S⁻¹ M (upper triangle), in that order. At a point, r = r₀ − M·φ gives
+/// h = h₀ − G·φ and s = s₀ − 2 uᵀφ + φᵀQφ.
+const fn lin_len(l: usize) -> usize {
+    NX + NX * l + 1 + l + l * (l + 1) / 2
+}
+
+/// h += Hᵀ v for H = [B | I₃].
+fn add_ht(h: &mut [f64], b: &Slopes, v: &Vector3<f64>) {
+    for (j, hj) in h.iter_mut().enumerate().take(N_LIN) {
+        *hj += (0..N_FEAT).map(|f| b[f][j] * v[f]).sum::<f64>();
+    }
+    for f in 0..N_FEAT {
+        h[N_LIN + f] += v[f];
+    }
+}
+
+/// Adds one event to a group's statistics `lin` ([`lin_len`]): slopes `b`, residual at φ = 0
+/// `r0` and the columns of M (`m`), both masked, inverse covariance `w`.
+fn lin_add(lin: &mut [f64], b: &Slopes, r0: &Vector3<f64>, m: &[[f64; N_FEAT]], w: &Matrix3<f64>) {
+    let l = m.len();
+    let (s0, u, q) = (NX + NX * l, NX + NX * l + 1, NX + NX * l + 1 + l);
+    let wr = w * r0;
+    add_ht(&mut lin[..NX], b, &wr);
+    lin[s0] += r0.dot(&wr);
+    let mut k = q;
+    for (i, mi) in m.iter().enumerate() {
+        let mv = Vector3::from(*mi);
+        let wm = w * mv;
+        add_ht(&mut lin[NX + i * NX..NX + (i + 1) * NX], b, &wm);
+        lin[u + i] += mv.dot(&wr);
+        for mj in &m[i..] {
+            lin[k] += wm.dot(&Vector3::from(*mj));
+            k += 1;
+        }
+    }
+}
+
+/// h and s of a group's statistics `lin` at a point with monomial values `phi`.
+fn lin_at(lin: &[f64], phi: &[f64]) -> (VecX, f64) {
+    let l = phi.len();
+    let (s0, u, q) = (NX + NX * l, NX + NX * l + 1, NX + NX * l + 1 + l);
+    let mut h = VecX::from_column_slice(&lin[..NX]);
+    let mut s = lin[s0];
+    let mut k = q;
+    for i in 0..l {
+        h -= VecX::from_column_slice(&lin[NX + i * NX..NX + (i + 1) * NX]) * phi[i];
+        s -= 2.0 * phi[i] * lin[u + i];
+        for j in i..l {
+            let f = if i == j { 1.0 } else { 2.0 };
+            s += f * phi[i] * phi[j] * lin[k];
+            k += 1;
+        }
+    }
+    (h, s)
+}
+
+/// ln p(events | grid point) up to a constant and the events' deviance at the point, from the
+/// factor of A = Λ₀ + P (`fac`, with ln det A), h, s, Σ ln det S (`ld`) and ln det Λ₀
+/// (`ld_lam`): s − hᵀA⁻¹h is, by the Woodbury identity, rᵀ(S + H Λ₀⁻¹ Hᵀ)⁻¹ r over all the
+/// events' residuals r, i.e. χ² with as many degrees of freedom as features observed when the
+/// events follow the model at this point.
+fn evidence(fac: &Option<(Factor, f64)>, h: &VecX, s: f64, ld: f64, ld_lam: f64) -> (f64, f64) {
+    match fac {
+        Some((ch, ln_det_a)) => {
+            let dev = s - h.dot(&ch.solve(h));
+            (-0.5 * dev - 0.5 * ln_det_a + 0.5 * ld_lam - 0.5 * ld, dev)
+        }
+        None => (f64::NEG_INFINITY, f64::INFINITY),
+    }
+}
+
+/// One phase hypothesis's grid points, in groups that share their statistics.
+///
+/// A point's slopes B depend only on the gridded variables that share a term with a
+/// closed-form coordinate (the slope variables; for the default laws ξ₁, and ψ where the
+/// unbalance is closed-form), and its predicted means a on the others only through the
+/// monomials of them that the law's terms hold (for the torque tables' law x5, ψ, ψ², x5·ψ,
+/// x5²): a = α + M·φ with α and M the same for all the points that agree on the slope
+/// variables. With Δ fixed per vehicle the events' covariance depends on the clearance only, so
+/// such points form one group: P, Σ ln det S and the statistics of [`lin_len`] are kept per
+/// group, and each point holds its monomials' values φ. With Δ new per event (`None`), the
+/// covariance holds the spread over Δ, which depends on every gridded variable, so each point
+/// is a group of its own.
+struct Grid {
+    points: Vec<[f64; N_VARS]>,
+    group: Vec<usize>,
+    n_groups: usize,
+    /// Per group: where the event's slopes and split means are evaluated (the group's slope
+    /// variables, the other gridded variables at 1, the closed-form coordinates at 0).
+    rep: Vec<[f64; N_VARS]>,
+    /// Class of each term for [`LinearModel::means_by_class`]: 0 constant within a group,
+    /// 1 + m the m-th monomial, `n_mono + 1` (left out) for a term with a closed-form
+    /// coordinate, which is 0 at every point.
+    class: Vec<usize>,
+    n_mono: usize,
+    /// The monomials' values at each point (`n_mono` per point).
+    phi: Vec<f64>,
+    /// The indices of x whose rows of P can be other than 0: the closed-form coordinates
+    /// that some term holds, and η.
+    live: Vec<usize>,
+}
+
+impl Grid {
+    /// `points` grouped by the slope variables of `model` (`per_point`: every point a group of
+    /// its own).
+    fn new(points: Vec<[f64; N_VARS]>, model: &LinearModel, per_point: bool) -> Grid {
+        let mut closed = [false; N_VARS];
+        for j in model.closed_form() {
+            closed[j] = true;
+        }
+        let has_closed = |t: &super::linear::Term| (0..N_VARS).any(|j| closed[j] && t.exp[j] > 0);
+        // Gridded variables sharing a term with a closed-form coordinate; the others.
+        let slope: Vec<usize> = (0..N_VARS)
+            .filter(|&v| !closed[v] && model.terms.iter().any(|t| t.exp[v] > 0 && has_closed(t)))
+            .collect();
+        let other: Vec<usize> = (0..N_VARS)
+            .filter(|&v| !closed[v] && !slope.contains(&v))
+            .collect();
+        let live: Vec<usize> = model
+            .closed_form()
+            .enumerate()
+            .filter(|&(_, j)| model.terms.iter().any(|t| t.exp[j] > 0))
+            .map(|(l, _)| l)
+            .chain(N_LIN..NX)
+            .collect();
+        if per_point {
+            let n = points.len();
+            return Grid {
+                rep: points.clone(),
+                points,
+                group: (0..n).collect(),
+                n_groups: n,
+                class: Vec::new(),
+                n_mono: 0,
+                phi: Vec::new(),
+                live,
+            };
+        }
+        // The monomials of the other gridded variables (exponents), and each term's class.
+        let mut monos: Vec<Vec<u8>> = Vec::new();
+        let class: Vec<usize> = model
+            .terms
+            .iter()
+            .map(|t| {
+                if has_closed(t) {
+                    return usize::MAX;
+                }
+                let e: Vec<u8> = other.iter().map(|&v| t.exp[v]).collect();
+                if e.iter().all(|&x| x == 0) {
+                    return 0;
+                }
+                1 + match monos.iter().position(|m| *m == e) {
+                    Some(i) => i,
+                    None => {
+                        monos.push(e);
+                        monos.len() - 1
+                    }
+                }
+            })
+            .collect();
+        let n_mono = monos.len();
+        let class = class.into_iter().map(|c| c.min(n_mono + 1)).collect();
+        let key =
+            |x: &[f64; N_VARS]| -> Vec<u64> { slope.iter().map(|&v| x[v].to_bits()).collect() };
+        let mut keys: Vec<Vec<u64>> = Vec::new();
+        let mut tagged: Vec<(usize, [f64; N_VARS])> = points
+            .into_iter()
+            .map(|x| {
+                let k = key(&x);
+                let g = match keys.iter().position(|q| *q == k) {
+                    Some(g) => g,
+                    None => {
+                        keys.push(k);
+                        keys.len() - 1
+                    }
+                };
+                (g, x)
+            })
+            .collect();
+        tagged.sort_by_key(|(g, _)| *g);
+        let mut rep = vec![[0.0; N_VARS]; keys.len()];
+        for (g, x) in tagged.iter().rev() {
+            rep[*g] = *x;
+        }
+        for r in rep.iter_mut() {
+            for &v in &other {
+                r[v] = 1.0;
+            }
+        }
+        let phi = tagged
+            .iter()
+            .flat_map(|(_, x)| {
+                monos.iter().map(|m| {
+                    other
+                        .iter()
+                        .zip(m)
+                        .map(|(&v, &e)| x[v].powi(e as i32))
+                        .product::<f64>()
+                })
+            })
+            .collect();
+        Grid {
+            group: tagged.iter().map(|(g, _)| *g).collect(),
+            points: tagged.into_iter().map(|(_, x)| x).collect(),
+            n_groups: keys.len(),
+            rep,
+            class,
+            n_mono,
+            phi,
+            live,
         }
     }
 
+    fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// The monomials' values at point `q`.
+    fn phi(&self, q: usize) -> &[f64] {
+        &self.phi[q * self.n_mono..(q + 1) * self.n_mono]
+    }
+}
+
+/// One hypothesis's statistics at `rows` clearances, per (clearance, group): P (packed,
+/// [`quad_add`]), Σ ln det S, and the statistics of [`lin_len`].
+#[derive(Default)]
+struct StatSet {
+    p: Vec<f64>,
+    ld: Vec<f64>,
+    lin: Vec<f64>,
+    np: usize,
+    stride: usize,
+}
+
+impl StatSet {
+    fn zero(rows: usize, grid: &Grid) -> StatSet {
+        let (n, stride) = (grid.live.len(), lin_len(grid.n_mono));
+        let np = n * (n + 1) / 2;
+        let cells = rows * grid.n_groups;
+        StatSet {
+            p: vec![0.0; cells * np],
+            ld: vec![0.0; cells],
+            lin: vec![0.0; cells * stride],
+            np,
+            stride,
+        }
+    }
+
+    fn p(&self, i: usize) -> &[f64] {
+        &self.p[i * self.np..(i + 1) * self.np]
+    }
+
+    fn lin(&self, i: usize) -> &[f64] {
+        &self.lin[i * self.stride..(i + 1) * self.stride]
+    }
+
+    /// Adds one event to cell `i`: P and ln det S ([`quad_add`]), then the statistics of
+    /// [`lin_len`] ([`lin_add`]).
+    #[allow(clippy::too_many_arguments)]
     fn add(
         &mut self,
-        pr: &super::linear::LinearPrediction,
-        z: &[f64; N_FEAT],
-        mask: &FeatureMask,
+        i: usize,
+        live: &[usize],
+        b: &Slopes,
         w: &Matrix3<f64>,
         ld: f64,
+        r0: &Vector3<f64>,
+        m: &[[f64; N_FEAT]],
     ) {
-        let mut hm = SMatrix::<f64, N_FEAT, NX>::zeros();
-        for f in 0..N_FEAT {
-            for j in 0..N_LIN {
-                hm[(f, j)] = pr.b[f][j];
-            }
-            hm[(f, N_LIN + f)] = 1.0;
-        }
-        let r = nalgebra::Vector3::from_fn(|f, _| if mask[f] { z[f] - pr.a[f] } else { 0.0 });
-        let ht_w = hm.transpose() * w;
-        self.p += ht_w * hm;
-        self.h += ht_w * r;
-        self.s += (r.transpose() * w * r)[(0, 0)];
-        self.ld += ld;
+        quad_add(&mut self.p[i * self.np..(i + 1) * self.np], live, b, w);
+        self.ld[i] += ld;
+        lin_add(
+            &mut self.lin[i * self.stride..(i + 1) * self.stride],
+            b,
+            r0,
+            m,
+            w,
+        );
     }
 
-    /// The statistics of both sets of events.
-    fn plus(&self, o: &Stats) -> Stats {
-        Stats {
-            p: self.p + o.p,
-            h: self.h + o.h,
-            s: self.s + o.s,
-            ld: self.ld + o.ld,
+    fn scale(&mut self, f: f64) {
+        for v in self.p.iter_mut().chain(&mut self.ld).chain(&mut self.lin) {
+            *v *= f;
         }
     }
+}
 
-    /// ln p(events | grid point) up to a constant, with prior precision `lam` (ln det `ld_lam`),
-    /// and the events' deviance at the grid point: s − hᵀA⁻¹h, which by the Woodbury identity
-    /// is rᵀ(S + H Λ₀⁻¹ Hᵀ)⁻¹ r over all the events' residuals r, i.e. χ² with as many degrees
-    /// of freedom as features observed when the events follow the model at this point.
-    fn evidence(&self, lam: &MatX, ld_lam: f64) -> (f64, f64) {
-        let a = lam + self.p;
-        match a.cholesky() {
-            Some(ch) => {
-                let q = self.h.dot(&ch.solve(&self.h));
-                let dev = self.s - q;
-                (
-                    -0.5 * dev - 0.5 * ch.ln_determinant() + 0.5 * ld_lam - 0.5 * self.ld,
-                    dev,
-                )
-            }
-            None => (f64::NEG_INFINITY, f64::INFINITY),
+/// Per-event scratch at each clearance of an update, allocated once.
+struct EventScratch {
+    coefs: Vec<Coefs>,
+    sigma: Vec<Matrix3<f64>>,
+    /// Hypothesis "vehicle": the masked inverse of Σ and its ln det (`None`: singular).
+    w: Vec<Option<(Matrix3<f64>, f64)>>,
+    /// A group's means split by class of term ([`LinearModel::means_by_class`]).
+    split: Vec<[f64; N_FEAT]>,
+    /// One point's term values; of hypothesis "event", at each quadrature phase and their mean.
+    basis: Basis,
+    basis_q: Vec<Basis>,
+    basis_mean: Basis,
+}
+
+impl EventScratch {
+    fn new(rows: usize, n_quad: usize, n_mono: usize) -> EventScratch {
+        EventScratch {
+            coefs: vec![Coefs::default(); rows],
+            sigma: vec![Matrix3::zeros(); rows],
+            w: vec![None; rows],
+            split: vec![[0.0; N_FEAT]; n_mono + 1],
+            basis: Basis::default(),
+            basis_q: vec![Basis::default(); n_quad],
+            basis_mean: Basis::default(),
         }
+    }
+}
+
+/// The residual z − a of the observed features (0 where masked).
+fn residual(z: &[f64; N_FEAT], a: &[f64; N_FEAT], mask: &FeatureMask) -> Vector3<f64> {
+    Vector3::from_fn(|f, _| if mask[f] { z[f] - a[f] } else { 0.0 })
+}
+
+/// Adds one event (features `z`, mask, speed position `sp`, deceleration) at the clearance
+/// positions `pos` to the statistics `sv` (grid `gv`, hypothesis "vehicle") and `se` (grid
+/// `ge`, "event"), row i of each for `pos[i]`. No allocation.
+#[allow(clippy::too_many_arguments)]
+fn accumulate(
+    model: &LinearModel,
+    inflation2: f64,
+    pos: &[(usize, f64)],
+    sp: (usize, f64),
+    z: &[f64; N_FEAT],
+    mask: &FeatureMask,
+    decel_g: f64,
+    (gv, ge): (&Grid, &Grid),
+    scr: &mut EventScratch,
+    sv: &mut StatSet,
+    se: &mut StatSet,
+) {
+    let rows = pos.len();
+    for (i, &p) in pos.iter().enumerate() {
+        model.coef_interp(p, sp, &mut scr.coefs[i]);
+        // The event scatter depends on the clearance only: one inverse per clearance.
+        scr.sigma[i] = model.within_at(p) * inflation2;
+        scr.w[i] = masked_inverse(&scr.sigma[i], mask);
+    }
+    // With hypothesis "vehicle" in use, a scatter the mask leaves singular means the event
+    // adds nothing at that clearance.
+    let skip = |i: usize, w: &[Option<(Matrix3<f64>, f64)>]| !gv.is_empty() && w[i].is_none();
+    let ngv = gv.n_groups;
+    for k in 0..ngv {
+        model.basis_into(&gv.rep[k], decel_g, &mut scr.basis);
+        for i in 0..rows {
+            let Some((w, ld)) = scr.w[i] else { continue };
+            // The slopes (the same at every point of the group) and a = α + M·φ.
+            let b = model.predict_with(&scr.coefs[i], &scr.basis).b;
+            model.means_by_class(&scr.coefs[i], &scr.basis, &gv.class, &mut scr.split);
+            for col in scr.split.iter_mut() {
+                for (f, v) in col.iter_mut().enumerate() {
+                    if !mask[f] {
+                        *v = 0.0;
+                    }
+                }
+            }
+            let r0 = residual(z, &scr.split[0], mask);
+            sv.add(i * ngv + k, &gv.live, &b, &w, ld, &r0, &scr.split[1..]);
+        }
+    }
+    let nge = ge.n_groups;
+    let n_quad = scr.basis_q.len();
+    for (q, x) in ge.points.iter().enumerate() {
+        // Δ new in this event: the mean of the prediction over Δ (the law is linear in its
+        // terms, so the mean event's terms give it) and its covariance.
+        for (k, u) in phase_quadrature(n_quad).enumerate() {
+            let mut y = *x;
+            y[PHASE] = u;
+            model.basis_into(&y, decel_g, &mut scr.basis_q[k]);
+        }
+        Basis::mean_of(&scr.basis_q, &mut scr.basis_mean);
+        let k = ge.group[q];
+        for i in 0..rows {
+            if skip(i, &scr.w) {
+                continue;
+            }
+            let mean = model.predict_with(&scr.coefs[i], &scr.basis_mean);
+            let am = Vector3::from(mean.a);
+            let mut var = Matrix3::<f64>::zeros();
+            for b in &scr.basis_q {
+                let d = Vector3::from(model.mean_with(&scr.coefs[i], b)) - am;
+                var += d * d.transpose();
+            }
+            var /= n_quad as f64;
+            let Some((w, ld)) = masked_inverse(&(scr.sigma[i] + var), mask) else {
+                continue;
+            };
+            let r = residual(z, &mean.a, mask);
+            se.add(i * nge + k, &ge.live, &mean.b, &w, ld, &r, &[]);
+        }
+    }
+}
+
+/// ln p and the deviance of every point of `grid` at clearance row `g` of `stats` (plus row 0 of
+/// `extra`, the baseline, when given), with prior precision `lam` (ln det `ld_lam`), into
+/// `out_l` and `out_dev`; `fac` is scratch for one factor per group. No allocation.
+#[allow(clippy::too_many_arguments)]
+fn point_evidence(
+    grid: &Grid,
+    stats: &StatSet,
+    g: usize,
+    extra: Option<&StatSet>,
+    lam: &MatX,
+    ld_lam: f64,
+    fac: &mut [Option<(Factor, f64)>],
+    out_l: &mut [f64],
+    out_dev: &mut [f64],
+) {
+    let ng = grid.n_groups;
+    for (k, f) in fac.iter_mut().enumerate().take(ng) {
+        let a = precision(lam, &grid.live, stats.p(g * ng + k), extra.map(|e| e.p(k)));
+        *f = a.cholesky().map(|ch| {
+            let l = ch.ln_determinant();
+            (ch, l)
+        });
+    }
+    for q in 0..grid.len() {
+        let (k, phi) = (grid.group[q], grid.phi(q));
+        let (mut h, mut s) = lin_at(stats.lin(g * ng + k), phi);
+        let mut ld = stats.ld[g * ng + k];
+        if let Some(e) = extra {
+            let (hb, sb) = lin_at(e.lin(k), phi);
+            h += hb;
+            s += sb;
+            ld += e.ld[k];
+        }
+        let (l, dev) = evidence(&fac[k], &h, s, ld, ld_lam);
+        out_l[q] = l;
+        out_dev[q] = dev;
     }
 }
 
@@ -170,33 +601,35 @@ impl PhaseMode {
     }
 }
 
-/// The running posterior of method `"linear"`. It keeps its own copy of the table's nuisance
-/// model and speed axis, so an update cannot be handed another table's model.
+/// The running posterior of method `"linear"`. It holds the table's nuisance model (shared)
+/// and its own copy of the speed axis, so an update cannot be handed another table's model.
 pub struct LinearPosterior {
-    model: LinearModel,
+    model: Arc<LinearModel>,
     speed_kmh: Vec<f64>,
     /// The fine clearance grid's positions on the table's clearance axis ([`fine_grid`]).
     pos: Vec<(usize, f64)>,
     /// Grid points of the gridded coordinates with Δ fixed per vehicle (hypothesis "vehicle":
     /// ψ set), and without ψ (hypothesis "event").
-    points_v: Vec<[f64; N_VARS]>,
-    points_e: Vec<[f64; N_VARS]>,
-    /// Statistics, index `g · points.len() + q`, per hypothesis.
-    stats_v: Vec<Stats>,
-    stats_e: Vec<Stats>,
-    /// Scratch: one event's term values at each grid point of "vehicle", and at each grid
-    /// point × quadrature phase of "event".
-    basis_v: Vec<Basis>,
-    basis_e: Vec<Basis>,
-    /// Scratch: the mean over the quadrature phases of `basis_e`, per grid point of "event".
-    basis_e_mean: Vec<Basis>,
-    /// Scratch: ln p(z | c_g, point) of one clearance (and, with a baseline, of the baseline
-    /// alone in `scratch_base`).
+    grid_v: Grid,
+    grid_e: Grid,
+    /// Statistics per hypothesis, a row per clearance of `pos`.
+    stats_v: StatSet,
+    stats_e: StatSet,
+    /// Statistics of the baseline events (known clearance), one row per hypothesis; empty
+    /// until the first one.
+    base_v: StatSet,
+    base_e: StatSet,
+    has_baseline: bool,
+    /// Scratch of one event's update at every clearance, and of a baseline event's.
+    scratch_event: EventScratch,
+    scratch_event_base: Option<EventScratch>,
+    /// Scratch: one factor of A per group, ln p(z | c_g, point) and the deviance per point of
+    /// one clearance (and, with a baseline, of the baseline alone).
+    fac: Vec<Option<(Factor, f64)>>,
     scratch: Vec<f64>,
+    scratch_dev: Vec<f64>,
     scratch_base: Vec<f64>,
-    /// Statistics of the baseline events (known clearance), per grid point of "vehicle" then
-    /// of "event"; empty until the first one.
-    baseline: Vec<Stats>,
+    scratch_base_dev: Vec<f64>,
     baseline_obs: f64,
     /// Where on the table's clearance axis the baseline events were (the last one's).
     baseline_pos: (usize, f64),
@@ -347,7 +780,7 @@ impl LinearPosterior {
     /// estimator settings `cfg` (checked by [`EstimatorConfig::validate`]).
     pub fn new(
         table: &ResponseTable,
-        model: &LinearModel,
+        model: &Arc<LinearModel>,
         pos: Vec<(usize, f64)>,
         cfg: &EstimatorConfig,
     ) -> anyhow::Result<LinearPosterior> {
@@ -395,6 +828,11 @@ impl LinearPosterior {
         } else {
             points
         };
+        // "vehicle": one event covariance per clearance, so points of one slope group share P;
+        // "event": the covariance holds the spread over Δ, which depends on every gridded
+        // variable, so each point is its own group.
+        let grid_v = Grid::new(points_v, model, false);
+        let grid_e = Grid::new(points_e, model, true);
         let n_quad = if model.has_phase() { EVENT_PHASES } else { 1 };
         let inflation2 = cfg.std_inflation * cfg.std_inflation;
         // The configured vehicle-level misfit (measured vehicles against the model's), and a
@@ -402,24 +840,30 @@ impl LinearPosterior {
         let misfit_var = 1e-4 + cfg.misfit_std * cfg.misfit_std;
         let prior = build_prior(model, &pos, misfit_var, inflation2)?;
         let ng = pos.len();
+        let n_points = grid_v.len().max(grid_e.len());
+        let n_groups = grid_v.n_groups.max(grid_e.n_groups);
         Ok(LinearPosterior {
-            model: model.clone(),
+            model: Arc::clone(model),
             speed_kmh: table.speed_kmh.clone(),
-            stats_v: vec![Stats::zero(); ng * points_v.len()],
-            stats_e: vec![Stats::zero(); ng * points_e.len()],
-            basis_v: vec![Basis::default(); points_v.len()],
-            basis_e: vec![Basis::default(); points_e.len() * n_quad],
-            basis_e_mean: vec![Basis::default(); points_e.len()],
-            scratch: vec![0.0; points_v.len().max(points_e.len())],
+            stats_v: StatSet::zero(ng, &grid_v),
+            stats_e: StatSet::zero(ng, &grid_e),
+            base_v: StatSet::default(),
+            base_e: StatSet::default(),
+            has_baseline: false,
+            scratch_event: EventScratch::new(ng, n_quad, grid_v.n_mono),
+            scratch_event_base: None,
+            fac: vec![None; n_groups],
+            scratch: vec![0.0; n_points],
+            scratch_dev: vec![0.0; n_points],
             scratch_base: Vec::new(),
-            baseline: Vec::new(),
+            scratch_base_dev: Vec::new(),
             baseline_obs: 0.0,
             baseline_pos: (0, 0.0),
             baseline_ln_jacobian: 0.0,
             misfit_var,
             baseline_misfit_var: cfg.baseline_misfit_std * cfg.baseline_misfit_std,
-            points_v,
-            points_e,
+            grid_v,
+            grid_e,
             pos,
             prior,
             inflation2,
@@ -437,7 +881,7 @@ impl LinearPosterior {
 
     /// Grid points per clearance (both hypotheses).
     pub fn points(&self) -> usize {
-        self.points_v.len() + self.points_e.len()
+        self.grid_v.len() + self.grid_e.len()
     }
 
     /// Fades the evidence over `dist_km` of driving.
@@ -447,12 +891,8 @@ impl LinearPosterior {
             return;
         }
         let f = (-(dist_km / self.half_life_km) * std::f64::consts::LN_2).exp();
-        for st in self.stats_v.iter_mut().chain(self.stats_e.iter_mut()) {
-            st.p *= f;
-            st.h *= f;
-            st.s *= f;
-            st.ld *= f;
-        }
+        self.stats_v.scale(f);
+        self.stats_e.scale(f);
         self.n_obs *= f;
         self.ln_jacobian *= f;
     }
@@ -468,20 +908,19 @@ impl LinearPosterior {
     pub fn update(&mut self, z: [f64; N_FEAT], mask: &FeatureMask, v0_kmh: f64, decel_g: f64) {
         self.n_obs += mask.iter().filter(|&&m| m).count() as f64;
         let sp = bracket(&self.speed_kmh, v0_kmh);
-        self.event_basis(decel_g);
-        let (nv, ne) = (self.points_v.len(), self.points_e.len());
-        let (mut stats_v, mut stats_e) = (
-            std::mem::take(&mut self.stats_v),
-            std::mem::take(&mut self.stats_e),
+        accumulate(
+            &self.model,
+            self.inflation2,
+            &self.pos,
+            sp,
+            &z,
+            mask,
+            decel_g,
+            (&self.grid_v, &self.grid_e),
+            &mut self.scratch_event,
+            &mut self.stats_v,
+            &mut self.stats_e,
         );
-        for (g, &pos) in self.pos.iter().enumerate() {
-            let (sv, se) = (
-                &mut stats_v[g * nv..(g + 1) * nv],
-                &mut stats_e[g * ne..(g + 1) * ne],
-            );
-            self.add_at(pos, sp, &z, mask, sv, se);
-        }
-        (self.stats_v, self.stats_e) = (stats_v, stats_e);
     }
 
     /// Adds one event of the same vehicle at a known clearance, at `pos` on the table's
@@ -495,10 +934,18 @@ impl LinearPosterior {
         decel_g: f64,
         pos: (usize, f64),
     ) {
-        let (nv, ne) = (self.points_v.len(), self.points_e.len());
-        if self.baseline.is_empty() {
-            self.baseline = vec![Stats::zero(); nv + ne];
-            self.scratch_base = vec![0.0; nv.max(ne)];
+        if !self.has_baseline {
+            self.has_baseline = true;
+            self.base_v = StatSet::zero(1, &self.grid_v);
+            self.base_e = StatSet::zero(1, &self.grid_e);
+            self.scratch_event_base = Some(EventScratch::new(
+                1,
+                self.scratch_event.basis_q.len(),
+                self.grid_v.n_mono,
+            ));
+            let n = self.grid_v.len().max(self.grid_e.len());
+            self.scratch_base = vec![0.0; n];
+            self.scratch_base_dev = vec![0.0; n];
             if self.baseline_misfit_var > 0.0 {
                 let var = self.misfit_var + self.baseline_misfit_var;
                 if let Ok(p) = build_prior(&self.model, &self.pos, var, self.inflation2) {
@@ -509,11 +956,21 @@ impl LinearPosterior {
         self.baseline_obs += mask.iter().filter(|&&m| m).count() as f64;
         self.baseline_pos = pos;
         let sp = bracket(&self.speed_kmh, v0_kmh);
-        self.event_basis(decel_g);
-        let mut base = std::mem::take(&mut self.baseline);
-        let (bv, be) = base.split_at_mut(nv);
-        self.add_at(pos, sp, &z, mask, bv, be);
-        self.baseline = base;
+        if let Some(scr) = self.scratch_event_base.as_mut() {
+            accumulate(
+                &self.model,
+                self.inflation2,
+                &[pos],
+                sp,
+                &z,
+                mask,
+                decel_g,
+                (&self.grid_v, &self.grid_e),
+                scr,
+                &mut self.base_v,
+                &mut self.base_e,
+            );
+        }
     }
 
     /// Adds one baseline event's ln dz_table/dz_measured (a gain other than 1) to the
@@ -527,25 +984,30 @@ impl LinearPosterior {
     /// this posterior was built with, both phase hypotheses in use weighted ½, with the
     /// evidence power and the Jacobian of any gain; up to a constant that depends only on the
     /// number of features observed. `None` before a baseline event. Allocates (the prior at
-    /// one position): for fits, not for the per-frame path.
+    /// one position and scratch): for fits, not for the per-frame path.
     pub fn baseline_ln_evidence(&self) -> Option<f64> {
-        if self.baseline.is_empty() {
+        if !self.has_baseline {
             return None;
         }
         let var = self.misfit_var + self.baseline_misfit_var;
         let prior = build_prior(&self.model, &[self.baseline_pos], var, self.inflation2).ok()?;
         let (lam, ld_lam) = &prior[0];
-        let nv = self.points_v.len();
-        let (bv, be) = self.baseline.split_at(nv);
-        let hyp = |stats: &[Stats]| -> f64 {
-            if stats.is_empty() {
+        let hyp = |grid: &Grid, stats: &StatSet| -> f64 {
+            if grid.is_empty() {
                 return f64::NEG_INFINITY;
             }
-            let ls: Vec<f64> = stats.iter().map(|st| st.evidence(lam, *ld_lam).0).collect();
-            log_mean_exp(&ls)
+            let mut fac = vec![None; grid.n_groups];
+            let (mut l, mut dev) = (vec![0.0; grid.len()], vec![0.0; grid.len()]);
+            point_evidence(
+                grid, stats, 0, None, lam, *ld_lam, &mut fac, &mut l, &mut dev,
+            );
+            log_mean_exp(&l)
         };
-        let (l_v, l_e) = (hyp(bv), hyp(be));
-        let l = match (bv.is_empty(), be.is_empty()) {
+        let (l_v, l_e) = (
+            hyp(&self.grid_v, &self.base_v),
+            hyp(&self.grid_e, &self.base_e),
+        );
+        let l = match (self.grid_v.is_empty(), self.grid_e.is_empty()) {
             (false, false) => log_mean_exp(&[l_v, l_e]),
             (false, true) => l_v,
             _ => l_e,
@@ -559,68 +1021,65 @@ impl LinearPosterior {
         self.baseline_obs
     }
 
-    /// The event's term values at every grid point (they do not depend on the clearance).
-    fn event_basis(&mut self, decel_g: f64) {
-        for (b, x) in self.basis_v.iter_mut().zip(&self.points_v) {
-            self.model.basis_into(x, decel_g, b);
+    /// ln p(events | c_g) of one hypothesis at clearance `g`, with the baseline's: the joint
+    /// one and the baseline's alone (0 without a baseline), both as means over the grid
+    /// points; updates the smallest deviance `min_dev` (the events' given the baseline).
+    fn hypothesis_evidence(&mut self, hyp_v: bool, g: usize, min_dev: &mut f64) -> (f64, f64) {
+        let (grid, stats, base) = if hyp_v {
+            (&self.grid_v, &self.stats_v, &self.base_v)
+        } else {
+            (&self.grid_e, &self.stats_e, &self.base_e)
+        };
+        if grid.is_empty() {
+            return (f64::NEG_INFINITY, f64::NEG_INFINITY);
         }
-        let n_quad = self.basis_e.len() / self.points_e.len().max(1);
-        for (i, x) in self.points_e.iter().enumerate() {
-            for (k, u) in phase_quadrature(n_quad).enumerate() {
-                let mut y = *x;
-                y[PHASE] = u;
-                self.model
-                    .basis_into(&y, decel_g, &mut self.basis_e[i * n_quad + k]);
-            }
-            Basis::mean_of(
-                &self.basis_e[i * n_quad..(i + 1) * n_quad],
-                &mut self.basis_e_mean[i],
+        let n = grid.len();
+        let (lam, ld_lam) = &self.prior[g];
+        let lb = if self.has_baseline {
+            point_evidence(
+                grid,
+                base,
+                0,
+                None,
+                lam,
+                *ld_lam,
+                &mut self.fac,
+                &mut self.scratch_base,
+                &mut self.scratch_base_dev,
             );
-        }
-    }
-
-    /// Adds one event (its term values from [`Self::event_basis`]) at clearance position `pos`
-    /// to the statistics `sv` (grid points of "vehicle") and `se` (of "event").
-    fn add_at(
-        &self,
-        pos: (usize, f64),
-        sp: (usize, f64),
-        z: &[f64; N_FEAT],
-        mask: &FeatureMask,
-        sv: &mut [Stats],
-        se: &mut [Stats],
-    ) {
-        let n_quad = self.basis_e.len() / self.points_e.len().max(1);
-        let mut coefs = Coefs::default();
-        self.model.coef_interp(pos, sp, &mut coefs);
-        // The event scatter depends on the clearance only: one inverse per clearance.
-        let sigma = self.model.within_at(pos) * self.inflation2;
-        if !sv.is_empty() {
-            // A scatter the mask leaves singular: the event adds nothing at this clearance.
-            let Some((w, ld)) = masked_inverse(&sigma, mask) else {
-                return;
-            };
-            for (st, b) in sv.iter_mut().zip(&self.basis_v) {
-                let pr = self.model.predict_with(&coefs, b);
-                st.add(&pr, z, mask, &w, ld);
+            point_evidence(
+                grid,
+                stats,
+                g,
+                Some(base),
+                lam,
+                *ld_lam,
+                &mut self.fac,
+                &mut self.scratch,
+                &mut self.scratch_dev,
+            );
+            for (d, db) in self.scratch_dev[..n].iter_mut().zip(&self.scratch_base_dev) {
+                *d -= db;
             }
+            log_mean_exp(&self.scratch_base[..n])
+        } else {
+            point_evidence(
+                grid,
+                stats,
+                g,
+                None,
+                lam,
+                *ld_lam,
+                &mut self.fac,
+                &mut self.scratch,
+                &mut self.scratch_dev,
+            );
+            0.0
+        };
+        for &d in &self.scratch_dev[..n] {
+            *min_dev = min_dev.min(d);
         }
-        for (q, st) in se.iter_mut().enumerate() {
-            // Δ new in this event: the mean of the prediction over Δ (the law is linear in
-            // its terms, so the mean event's terms give it) and its covariance.
-            let mean = self.model.predict_with(&coefs, &self.basis_e_mean[q]);
-            let am = nalgebra::Vector3::from(mean.a);
-            let mut var = Matrix3::<f64>::zeros();
-            for b in &self.basis_e[q * n_quad..(q + 1) * n_quad] {
-                let d = nalgebra::Vector3::from(self.model.mean_with(&coefs, b)) - am;
-                var += d * d.transpose();
-            }
-            var /= n_quad as f64;
-            let Some((w, ld)) = masked_inverse(&(sigma + var), mask) else {
-                continue;
-            };
-            st.add(&mean, z, mask, &w, ld);
-        }
+        (log_mean_exp(&self.scratch[..n]), lb)
     }
 
     /// Writes the normalised posterior probabilities of the grid points into `out` (one per
@@ -630,43 +1089,12 @@ impl LinearPosterior {
         let mut mx = f64::NEG_INFINITY;
         let mut mx_raw = f64::NEG_INFINITY;
         let mut min_dev = f64::INFINITY;
-        let (nv, ne) = (self.points_v.len(), self.points_e.len());
-        let has_base = !self.baseline.is_empty();
-        for (g, o) in out.iter_mut().enumerate().take(self.pos.len()) {
-            let (lam, ld_lam) = &self.prior[g];
-            // ln p per grid point of the events (with the baseline's: joint), and of the
-            // baseline alone; the deviance is the events' given the baseline.
-            let mut hyp = |stats: &[Stats], base: &[Stats]| -> (f64, f64) {
-                if stats.is_empty() {
-                    return (f64::NEG_INFINITY, f64::NEG_INFINITY);
-                }
-                for (q, st) in stats.iter().enumerate() {
-                    let (l, dev) = if has_base {
-                        let (lb, devb) = base[q].evidence(lam, *ld_lam);
-                        self.scratch_base[q] = lb;
-                        let (l, dev) = st.plus(&base[q]).evidence(lam, *ld_lam);
-                        (l, dev - devb)
-                    } else {
-                        st.evidence(lam, *ld_lam)
-                    };
-                    self.scratch[q] = l;
-                    min_dev = min_dev.min(dev);
-                }
-                let n = stats.len();
-                let lb = if has_base {
-                    log_mean_exp(&self.scratch_base[..n])
-                } else {
-                    0.0
-                };
-                (log_mean_exp(&self.scratch[..n]), lb)
-            };
-            let (base_v, base_e) = if has_base {
-                self.baseline.split_at(nv)
-            } else {
-                (&[][..], &[][..])
-            };
-            let (l_v, lb_v) = hyp(&self.stats_v[g * nv..(g + 1) * nv], base_v);
-            let (l_e, lb_e) = hyp(&self.stats_e[g * ne..(g + 1) * ne], base_e);
+        let (nv, ne) = (self.grid_v.len(), self.grid_e.len());
+        let has_base = self.has_baseline;
+        for g in 0..self.pos.len().min(out.len()) {
+            // ln p of the events (with the baseline's: joint) and of the baseline alone.
+            let (l_v, lb_v) = self.hypothesis_evidence(true, g, &mut min_dev);
+            let (l_e, lb_e) = self.hypothesis_evidence(false, g, &mut min_dev);
             // Equal prior weight on the hypotheses that are in use; with a baseline, less the
             // baseline's own evidence (the conditional evidence, module doc).
             let (l, lb) = match (nv > 0, ne > 0) {
@@ -680,8 +1108,8 @@ impl LinearPosterior {
             } else {
                 0.5
             };
-            *o = self.power * l + log_prior[g];
-            mx = mx.max(*o);
+            out[g] = self.power * l + log_prior[g];
+            mx = mx.max(out[g]);
             self.scratch_raw[g] = l + log_prior[g];
             mx_raw = mx_raw.max(self.scratch_raw[g]);
         }
@@ -757,5 +1185,232 @@ impl LinearPosterior {
     /// [`Self::probabilities_into`]; `None` when only one hypothesis is in use.
     pub fn phase_fixed_probability(&self) -> Option<f64> {
         self.p_vehicle.is_finite().then_some(self.p_vehicle)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// One event as the estimator sees it: features, mask, initial speed, deceleration.
+    type Ev = ([f64; N_FEAT], FeatureMask, f64, f64);
+
+    fn table(name: &str) -> ResponseTable {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("config/vehicles/toyota_rav4")
+            .join(name);
+        ResponseTable::load(&path).unwrap()
+    }
+
+    /// Events of one vehicle drawn from the table's model at clearance index `ic`, one
+    /// coordinate vector and phase difference, with event scatter; every fourth without the
+    /// cruise feature.
+    fn events(t: &ResponseTable, ic: usize, n: usize, seed: u64) -> Vec<Ev> {
+        let lm = t.linear.as_ref().unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut x = [0.0; N_VARS];
+        for v in x.iter_mut() {
+            *v = rng.random_range(-0.9..0.9);
+        }
+        (0..n)
+            .map(|k| {
+                let v0 = rng.random_range(32.0..95.0);
+                let d = rng.random_range(0.3..0.8);
+                let iv = bracket(&t.speed_kmh, v0).0;
+                let z = std::array::from_fn(|f| {
+                    lm.mean_at(ic, iv, f, &x, d) + 0.1 * rng.random_range(-1.0..1.0)
+                });
+                (z, [true, true, k % 4 != 3], v0, d)
+            })
+            .collect()
+    }
+
+    /// ln p(events | c_g, point) and the deviance of every point of one hypothesis, summed
+    /// event by event at each point (no groups, no split means): what the grouped
+    /// statistics must reproduce.
+    fn naive(
+        post: &LinearPosterior,
+        grid: &Grid,
+        per_event_phase: bool,
+        g: usize,
+        evs: &[Ev],
+        base: &[(Ev, (usize, f64))],
+    ) -> Vec<(f64, f64, f64)> {
+        let m = &post.model;
+        let (lam, ld_lam) = &post.prior[g];
+        let n_quad = if m.has_phase() { EVENT_PHASES } else { 1 };
+        let mut out = Vec::new();
+        for x in &grid.points {
+            // [events and baseline, baseline alone]: A, h, s, Σ ln det S.
+            let mut acc = [(*lam, VecX::zeros(), 0.0, 0.0); 2];
+            let all = evs
+                .iter()
+                .map(|e| (e, post.pos[g], false))
+                .chain(base.iter().map(|(e, p)| (e, *p, true)));
+            for (&(z, mask, v0, d), p, is_base) in all {
+                let mut coefs = Coefs::default();
+                m.coef_interp(p, bracket(&post.speed_kmh, v0), &mut coefs);
+                let sigma = m.within_at(p) * post.inflation2;
+                let mut basis = Basis::default();
+                let (pr, var) = if per_event_phase {
+                    let mut bq = vec![Basis::default(); n_quad];
+                    for (k, u) in phase_quadrature(n_quad).enumerate() {
+                        let mut y = *x;
+                        y[PHASE] = u;
+                        m.basis_into(&y, d, &mut bq[k]);
+                    }
+                    Basis::mean_of(&bq, &mut basis);
+                    let pr = m.predict_with(&coefs, &basis);
+                    let mut var = Matrix3::zeros();
+                    for b in &bq {
+                        let dv = Vector3::from(m.mean_with(&coefs, b)) - Vector3::from(pr.a);
+                        var += dv * dv.transpose() / n_quad as f64;
+                    }
+                    (pr, var)
+                } else {
+                    m.basis_into(x, d, &mut basis);
+                    (m.predict_with(&coefs, &basis), Matrix3::zeros())
+                };
+                let (w, ld) = masked_inverse(&(sigma + var), &mask).unwrap();
+                let mut hm = SMatrix::<f64, N_FEAT, NX>::zeros();
+                for f in 0..N_FEAT {
+                    for j in 0..N_LIN {
+                        hm[(f, j)] = pr.b[f][j];
+                    }
+                    hm[(f, N_LIN + f)] = 1.0;
+                }
+                let r = residual(&z, &pr.a, &mask);
+                for (i, a) in acc.iter_mut().enumerate() {
+                    if i == 1 && !is_base {
+                        continue;
+                    }
+                    a.0 += hm.transpose() * w * hm;
+                    a.1 += hm.transpose() * (w * r);
+                    a.2 += r.dot(&(w * r));
+                    a.3 += ld;
+                }
+            }
+            let ev = |(a, h, s, ld): (MatX, VecX, f64, f64)| {
+                let ch = a.cholesky().unwrap();
+                let dev = s - h.dot(&ch.solve(&h));
+                (
+                    -0.5 * dev - 0.5 * ch.ln_determinant() + 0.5 * ld_lam - 0.5 * ld,
+                    dev,
+                )
+            };
+            let (l, dev) = ev(acc[0]);
+            let (lb, devb) = if base.is_empty() {
+                (0.0, 0.0)
+            } else {
+                ev(acc[1])
+            };
+            out.push((l, lb, dev - devb));
+        }
+        out
+    }
+
+    /// The posterior of `post` after `evs` (and the baseline events `base`), and the one of
+    /// [`naive`] on the same grid points, with the smallest deviance of each.
+    fn both(
+        mut post: LinearPosterior,
+        evs: &[Ev],
+        base: &[(Ev, (usize, f64))],
+    ) -> (Vec<f64>, Vec<f64>, f64, f64) {
+        for &((z, mask, v0, d), p) in base {
+            post.update_known(z, &mask, v0, d, p);
+        }
+        for &(z, mask, v0, d) in evs {
+            post.update(z, &mask, v0, d);
+        }
+        let ng = post.pos.len();
+        let mut got = vec![0.0; ng];
+        post.probabilities_into(&mut got, &vec![0.0; ng]);
+        let mut want = vec![0.0; ng];
+        let mut min_dev = f64::INFINITY;
+        for (g, w) in want.iter_mut().enumerate() {
+            let mut hyp = |grid: &Grid, per_event: bool| -> (f64, f64) {
+                if grid.is_empty() {
+                    return (f64::NEG_INFINITY, f64::NEG_INFINITY);
+                }
+                let pts = naive(&post, grid, per_event, g, evs, base);
+                min_dev = pts.iter().fold(min_dev, |m, p| m.min(p.2));
+                let l: Vec<f64> = pts.iter().map(|p| p.0).collect();
+                let lb: Vec<f64> = pts.iter().map(|p| p.1).collect();
+                (log_mean_exp(&l), log_mean_exp(&lb))
+            };
+            let (l_v, lb_v) = hyp(&post.grid_v, false);
+            let (l_e, lb_e) = hyp(&post.grid_e, true);
+            let l = log_mean_exp(&[l_v, l_e]) - log_mean_exp(&[lb_v, lb_e]);
+            *w = post.power * l;
+        }
+        let mx = want.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        want.iter_mut().for_each(|w| *w = (*w - mx).exp());
+        let sum: f64 = want.iter().sum();
+        want.iter_mut().for_each(|w| *w /= sum);
+        (got, want, post.fit().unwrap().0, min_dev)
+    }
+
+    fn check(name: &str, baseline: bool) {
+        let t = table(name);
+        let lm = t.linear.clone().unwrap();
+        let cfg = EstimatorConfig {
+            evidence_power: 0.3,
+            ..EstimatorConfig::default()
+        };
+        let (_, pos) = fine_grid(&t.clearance_mm, 2);
+        let post = LinearPosterior::new(&t, &lm, pos, &cfg).unwrap();
+        let evs = events(&t, 6, 12, 7);
+        let base: Vec<(Ev, (usize, f64))> = if baseline {
+            events(&t, 1, 4, 8)
+                .into_iter()
+                .map(|e| (e, axis_position(&t.clearance_mm, t.clearance_mm[1])))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let (got, want, dev, want_dev) = both(post, &evs, &base);
+        for (g, (a, b)) in got.iter().zip(&want).enumerate() {
+            assert!(
+                (a - b).abs() <= 1e-9 + 1e-7 * b,
+                "{name}: clearance {g}: grouped {a}, per point {b}"
+            );
+        }
+        assert!(
+            (dev - want_dev).abs() <= 1e-7 * want_dev.abs().max(1.0),
+            "{name}: deviance {dev} vs {want_dev}"
+        );
+        // The events were drawn at clearance index 6: the posterior must say so, or the
+        // comparison above compared nothing.
+        let best = got
+            .iter()
+            .enumerate()
+            .fold(0, |b, (i, p)| if *p > got[b] { i } else { b });
+        assert!(
+            (10..=14).contains(&best),
+            "{name}: peak at fine index {best}"
+        );
+    }
+
+    #[test]
+    fn grouped_statistics_equal_per_point_sums_on_the_torque_law() {
+        // x5² gridded: 9 damping × 7 unbalance × 8 phase points share 9 groups.
+        let t = table("table_torque.json");
+        let lm = t.linear.clone().unwrap();
+        assert_eq!(lm.gridded, vec![super::super::linear::UNBALANCE]);
+        let (_, pos) = fine_grid(&t.clearance_mm, 2);
+        let post = LinearPosterior::new(&t, &lm, pos, &EstimatorConfig::default()).unwrap();
+        assert_eq!((post.grid_v.len(), post.grid_v.n_groups), (504, 9));
+        assert_eq!(post.grid_v.n_mono, 5);
+        check("table_torque.json", false);
+        check("table_torque.json", true);
+    }
+
+    #[test]
+    fn grouped_statistics_equal_per_point_sums_on_the_angle_law() {
+        // The unbalance closed-form: ψ sets its slope, so every point is its own group.
+        check("table.json", false);
+        check("table.json", true);
     }
 }

@@ -127,8 +127,9 @@ pub struct ResponseTable {
     pub provenance: String,
     /// The linear nuisance model fitted on the same events ([`super::linear`]), for the
     /// estimator's method `"linear"`; absent in tables of fewer drawn vehicles than it needs.
+    /// Shared with the estimators built on the table.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub linear: Option<super::linear::LinearModel>,
+    pub linear: Option<std::sync::Arc<super::linear::LinearModel>>,
     /// The nuisance prior the table's vehicles were drawn from and its nuisance model's
     /// coordinates are scaled to ([`super::emulate::coords`]); tables written before it was
     /// recorded were built with the default.
@@ -288,6 +289,9 @@ impl ResponseTable {
             serde_json::from_str(&text).with_context(not_a_table)?
         };
         let mut t = t;
+        if let Some(lm) = t.linear.as_mut().and_then(std::sync::Arc::get_mut) {
+            lm.coef.shrink_to_fit();
+        }
         t.validate()
             .with_context(|| format!("response table {}", path.display()))?;
         t.fingerprint = fnv1a_hex(text.as_bytes());

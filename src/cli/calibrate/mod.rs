@@ -717,14 +717,14 @@ pub fn assemble_table(
     // The nuisance model needs drawn vehicles spread over the prior, more of them than its
     // terms.
     if nm > grid.terms.len() && ranges.stiffness_damping_rel > 0.0 {
-        t.linear = Some(crate::observer::linear::fit(
+        t.linear = Some(std::sync::Arc::new(crate::observer::linear::fit(
             &raw,
             &table_coords,
             grid.clearance_mm.len(),
             nv,
             &grid.terms,
             MIN_STD,
-        )?);
+        )?));
         t.provenance += &format!(
             "; nuisance model of {} terms (leave-one-vehicle-out misfit)",
             grid.terms.len()
