@@ -456,7 +456,9 @@ fn the_steering_torque_is_kept_with_the_event_and_measured_in_newton_metres() {
         if s.steer_rad.is_some() && k % 2 == 0 {
             let t = s.t_ns as f64 * 1e-9;
             let braking = s.brake == Some(true);
-            s.torque_nm = Some(if braking { 0.2 } else { 0.0 } * (2.0 * 3.14159 * 10.0 * t).sin());
+            s.torque_nm = Some(
+                if braking { 0.2 } else { 0.0 } * (2.0 * std::f64::consts::PI * 10.0 * t).sin(),
+            );
         }
         if let Some(f) = det.push(&s) {
             let rec = f.record.clone();
