@@ -84,12 +84,13 @@ fn a_steering_sensor_noisier_than_the_tables_is_named_as_the_reason_the_model_do
     // The same events are used: the check says how far to trust them, it drops nothing.
     assert_eq!(noisy["events_used"], ok["events_used"]);
 
-    // shimmyd on the same logs: its estimate carries the reason (and so would a clearance
-    // alert's summary); the matched sensor's carries none.
+    // shimmyd on the same logs: its estimate carries the reason (and raises no clearance
+    // alert from it: src/alerts); the matched sensor's carries none.
     let j = e2e_common::replay_reference(&drive(dir.path(), 0.08), &dir.path().join("d1"), None);
     let est = j.estimate.expect("an estimate record");
     let why = est["misfit"].as_str().unwrap_or_default();
     assert!(why.contains("steering angle sensor is noisier"), "{est}");
+    assert_eq!(est["sensor_noisier"], true, "{est}");
     let j = e2e_common::replay_reference(&drive(dir.path(), 0.01), &dir.path().join("d2"), None);
     assert!(j.estimate.unwrap().get("misfit").is_none());
 }

@@ -263,8 +263,19 @@ impl AlertBook {
         }
         if let Some(e) = est {
             if let Some(p) = e.p_above {
-                let raise = p >= cfg.clearance_probability;
-                let clear = p < cfg.clearance_clear_probability;
+                // A steering sensor measured noisier than its table assumes is a monitor not
+                // set up for this car (src/observer/noise_floor.rs): the estimate reads the extra
+                // noise as clearance, so it raises no alert, and an open one is cleared, saying
+                // why (the report then sends the mechanic to inspect by hand and names the table
+                // to build).
+                let (raise, clear) = if e.sensor_noisier {
+                    (false, true)
+                } else {
+                    (
+                        p >= cfg.clearance_probability,
+                        p < cfg.clearance_clear_probability,
+                    )
+                };
                 let summary = match (e.clearance_mm, e.interval_mm) {
                     (Some(c), Some([lo, hi])) => format!(
                         "estimated clearance {c:.3} mm (90 % interval {lo:.3}-{hi:.3} mm), \
@@ -438,6 +449,7 @@ mod tests {
             chassis_variant: None,
             chassis_variant_inspect: None,
             wheel_order_shake: false,
+            sensor_noisier: false,
         };
         // Just below the raise probability: nothing.
         let below = cfg.clearance_probability - 0.01;
@@ -467,6 +479,44 @@ mod tests {
             Some(&est(cfg.clearance_clear_probability - 0.1)),
         );
         assert_eq!(kinds(&t), [("cleared", Kind::Clearance)]);
+    }
+
+    #[test]
+    fn a_sensor_noisier_than_its_table_raises_no_clearance_alert_and_clears_an_open_one() {
+        let cfg = AlertsSection::default();
+        let mut b = AlertBook::default();
+        let est = |p: f64, noisy: bool| Estimate {
+            clearance_mm: Some(0.15),
+            interval_mm: Some([0.12, 0.19]),
+            detectable: true,
+            below_mm: None,
+            p_above: Some(p),
+            events_used: 7,
+            misfit: noisy.then(|| "its steering torque sensor is noisier".to_string()),
+            chassis_variant: None,
+            chassis_variant_inspect: None,
+            wheel_order_shake: false,
+            sensor_noisier: noisy,
+        };
+        // Certain, but from a sensor the table does not describe: nothing.
+        assert!(b
+            .on_event(&cfg, &ev(0.0, 80.0, 0.1), Some(&est(0.99, true)))
+            .is_empty());
+        // Raised while the noise was not yet measured, then the noise shows: cleared, saying why.
+        let t = b.on_event(&cfg, &ev(1.0, 80.0, 0.1), Some(&est(0.99, false)));
+        assert_eq!(kinds(&t), [("raised", Kind::Clearance)]);
+        let t = b.on_event(&cfg, &ev(2.0, 80.0, 0.1), Some(&est(0.99, true)));
+        assert_eq!(kinds(&t), [("cleared", Kind::Clearance)]);
+        let Transition::Cleared(a) = &t[0] else {
+            panic!()
+        };
+        assert!(a.summary.contains("sensor is noisier"), "{}", a.summary);
+        assert!(!b.is_open(Kind::Clearance));
+        // The shimmy rule, a measured amplitude, does not depend on the table and still raises.
+        for k in 0..2 {
+            b.on_event(&cfg, &ev(3.0 + k as f64, 55.0, 0.3), Some(&est(0.99, true)));
+        }
+        assert!(b.is_open(Kind::Shimmy55) && !b.is_open(Kind::Clearance));
     }
 
     #[test]

@@ -80,6 +80,12 @@ pub struct Estimate {
     /// before the joints are judged.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub wheel_order_shake: bool,
+    /// The model does not fit because the estimate's steering sensor measured noisier at
+    /// standstill than its response table assumes (src/observer/noise_floor.rs): the monitor is
+    /// not set up for this car's sensor, so no clearance alert is raised from the estimate
+    /// (`crate::alerts::AlertBook`) until a table for it is built.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub sensor_noisier: bool,
 }
 
 /// [`EventStage::rejections`]: the counts and their explanation (counts, then the likely cause).

@@ -355,6 +355,7 @@ mod tests {
                 chassis_variant: None,
                 chassis_variant_inspect: None,
                 wheel_order_shake: false,
+                sensor_noisier: false,
             })
         }
     }

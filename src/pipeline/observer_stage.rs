@@ -664,6 +664,7 @@ impl EventStage for ObserverStage {
             chassis_variant: used.then(|| self.obs.chassis_variant()).flatten(),
             chassis_variant_inspect: used.then(|| self.obs.chassis_variant_inspect()).flatten(),
             wheel_order_shake: fit.0.is_some_and(|f| f.wheel_order_shake),
+            sensor_noisier: fit.0.is_some_and(|f| f.sensor_noisier),
         })
     }
 }

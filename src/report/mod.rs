@@ -66,6 +66,7 @@ mod tests {
             chassis_variant: None,
             chassis_variant_inspect: None,
             wheel_order_shake: false,
+            sensor_noisier: false,
         };
         let v = |e: Estimate| super::verdict(&[], Some(&e), 12, &cfg);
         let ok = v(est(Some(0.085), 0.081, 0.093, true));
