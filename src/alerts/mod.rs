@@ -377,6 +377,24 @@ mod tests {
         }
     }
 
+    /// An estimate of 0.15 mm (0.12-0.19) over 7 events with P(above) `p`, its sensor
+    /// measured noisier than its table (`noisy`, with the reason) or not.
+    fn estimate(p: f64, noisy: bool) -> Estimate {
+        Estimate {
+            clearance_mm: Some(0.15),
+            interval_mm: Some([0.12, 0.19]),
+            detectable: true,
+            below_mm: None,
+            p_above: Some(p),
+            events_used: 7,
+            misfit: noisy.then(|| "its steering torque sensor is noisier".to_string()),
+            chassis_variant: None,
+            chassis_variant_inspect: None,
+            wheel_order_shake: false,
+            sensor_noisier: noisy,
+        }
+    }
+
     fn kinds(ts: &[Transition]) -> Vec<(&'static str, Kind)> {
         ts.iter()
             .map(|t| match t {
@@ -438,19 +456,7 @@ mod tests {
     fn clearance_follows_probability_with_hysteresis_and_carries_evidence() {
         let cfg = AlertsSection::default();
         let mut b = AlertBook::default();
-        let est = |p: f64| Estimate {
-            clearance_mm: Some(0.15),
-            interval_mm: Some([0.12, 0.19]),
-            detectable: true,
-            below_mm: None,
-            p_above: Some(p),
-            events_used: 7,
-            misfit: None,
-            chassis_variant: None,
-            chassis_variant_inspect: None,
-            wheel_order_shake: false,
-            sensor_noisier: false,
-        };
+        let est = |p: f64| estimate(p, false);
         // Just below the raise probability: nothing.
         let below = cfg.clearance_probability - 0.01;
         assert!(below > cfg.clearance_clear_probability);
@@ -485,19 +491,7 @@ mod tests {
     fn a_sensor_noisier_than_its_table_raises_no_clearance_alert_and_clears_an_open_one() {
         let cfg = AlertsSection::default();
         let mut b = AlertBook::default();
-        let est = |p: f64, noisy: bool| Estimate {
-            clearance_mm: Some(0.15),
-            interval_mm: Some([0.12, 0.19]),
-            detectable: true,
-            below_mm: None,
-            p_above: Some(p),
-            events_used: 7,
-            misfit: noisy.then(|| "its steering torque sensor is noisier".to_string()),
-            chassis_variant: None,
-            chassis_variant_inspect: None,
-            wheel_order_shake: false,
-            sensor_noisier: noisy,
-        };
+        let est = estimate;
         // Certain, but from a sensor the table does not describe: nothing.
         assert!(b
             .on_event(&cfg, &ev(0.0, 80.0, 0.1), Some(&est(0.99, true)))
