@@ -140,7 +140,13 @@ fn precision(lam: &MatX, live: &[usize], p: &[f64], other: Option<&[f64]>) -> Ma
 /// Q = Σ Mᵀ S⁻¹ M (upper triangle), in that order. At a point, r = r₀ − M·φ gives
 /// h = h₀ − G·φ and s = s₀ − 2 uᵀφ + φᵀQφ.
 const fn lin_len(l: usize) -> usize {
-    NX + NX * l + 1 + l + l * (l + 1) / 2
+    lin_offsets(l).2 + l * (l + 1) / 2
+}
+
+/// Where s₀, u and Q start in a group's statistics of [`lin_len`] with `l` monomials.
+const fn lin_offsets(l: usize) -> (usize, usize, usize) {
+    let s0 = NX + NX * l;
+    (s0, s0 + 1, s0 + 1 + l)
 }
 
 /// h += Hᵀ v for H = [B | I₃].
@@ -156,8 +162,7 @@ fn add_ht(h: &mut [f64], b: &Slopes, v: &Vector3<f64>) {
 /// Adds one event to a group's statistics `lin` ([`lin_len`]): slopes `b`, residual at φ = 0
 /// `r0` and the columns of M (`m`), both masked, inverse covariance `w`.
 fn lin_add(lin: &mut [f64], b: &Slopes, r0: &Vector3<f64>, m: &[[f64; N_FEAT]], w: &Matrix3<f64>) {
-    let l = m.len();
-    let (s0, u, q) = (NX + NX * l, NX + NX * l + 1, NX + NX * l + 1 + l);
+    let (s0, u, q) = lin_offsets(m.len());
     let wr = w * r0;
     add_ht(&mut lin[..NX], b, &wr);
     lin[s0] += r0.dot(&wr);
@@ -177,7 +182,7 @@ fn lin_add(lin: &mut [f64], b: &Slopes, r0: &Vector3<f64>, m: &[[f64; N_FEAT]], 
 /// h and s of a group's statistics `lin` at a point with monomial values `phi`.
 fn lin_at(lin: &[f64], phi: &[f64]) -> (VecX, f64) {
     let l = phi.len();
-    let (s0, u, q) = (NX + NX * l, NX + NX * l + 1, NX + NX * l + 1 + l);
+    let (s0, u, q) = lin_offsets(l);
     let mut h = VecX::from_column_slice(&lin[..NX]);
     let mut s = lin[s0];
     let mut k = q;
@@ -217,7 +222,7 @@ fn evidence(fac: &Option<(Factor, f64)>, h: &VecX, s: f64, ld: f64, ld_lam: f64)
 /// x5²): a = α + M·φ with α and M the same for all the points that agree on the slope
 /// variables. With Δ fixed per vehicle the events' covariance depends on the clearance only, so
 /// such points form one group: P, Σ ln det S and the statistics of [`lin_len`] are kept per
-/// group, and each point holds its monomials' values φ. With Δ new per event (`None`), the
+/// group, and each point holds its monomials' values φ. With Δ new per event (`per_point`), the
 /// covariance holds the spread over Δ, which depends on every gridded variable, so each point
 /// is a group of its own.
 struct Grid {
@@ -225,7 +230,8 @@ struct Grid {
     group: Vec<usize>,
     n_groups: usize,
     /// Per group: where the event's slopes and split means are evaluated (the group's slope
-    /// variables, the other gridded variables at 1, the closed-form coordinates at 0).
+    /// variables, the other gridded variables at 1, the closed-form coordinates at 0); empty
+    /// for a per-point grid, whose events are evaluated at the points themselves.
     rep: Vec<[f64; N_VARS]>,
     /// Class of each term for [`LinearModel::means_by_class`]: 0 constant within a group,
     /// 1 + m the m-th monomial, `n_mono + 1` (left out) for a term with a closed-form
@@ -265,7 +271,7 @@ impl Grid {
         if per_point {
             let n = points.len();
             return Grid {
-                rep: points.clone(),
+                rep: Vec::new(),
                 points,
                 group: (0..n).collect(),
                 n_groups: n,
