@@ -177,12 +177,55 @@ fn python_can_blf_fixtures() {
         );
         assert!(s[0].location.ends_with(&format!("{name}:object 2")));
     }
-    // issue 1905: CAN_FD_MESSAGE_64 objects that declare 64 bytes but hold 48.
-    let (_, st, mut r) = open(&format!("{d}/issue_1905.blf")).unwrap();
-    assert!(st.malformed > 0);
-    assert!(r.take_skips()[0]
-        .reason
-        .contains("declares 64 payload bytes but holds only 48"));
+    // issue 1905 (a TSMaster log): CAN_FD_MESSAGE_64 objects that declare 64 valid bytes but
+    // hold 48. Read as CANoe and python-can read them: 64 bytes, the last 16 zero, counted.
+    let (f, st, _) = open(&format!("{d}/issue_1905.blf")).unwrap();
+    assert_eq!((st.frames, st.malformed, st.zero_filled), (22, 0, 22));
+    let f0 = &f[0];
+    assert_eq!((f0.iface.as_str(), f0.id, f0.extended), ("can6", 0x6A9, false));
+    assert!(f0.fd && f0.brs);
+    assert_eq!((f0.len, f0.dlc), (64, 15));
+    assert!(f0.data[..48].iter().all(|&b| b == 0xFF));
+    assert!(f0.data[48..64].iter().all(|&b| b == 0));
+    assert_eq!(f0.t_ns / 1_000, 1_735_654_183_491_113);
+    assert!(st.zero_filled_note().unwrap().starts_with("22 frame(s)"));
+}
+
+/// A CAN FD 64 object shorter than its valid bytes: the data it holds, then zeros, counted;
+/// its data field ends at the extended data's offset when one is given; a complete one is
+/// not counted.
+#[test]
+fn blf_fd64_object_short_of_its_valid_bytes_is_zero_filled() {
+    // CAN_FD_MESSAGE_64 body: channel, dlc, valid bytes, tx count, id, frame length, flags
+    // (0x1000 FD), 4 u32 (bit timing, offsets), bit count u16, dir, ext data offset, crc.
+    let fd64 = |valid: u8, held: usize, ext: u8| {
+        let mut b = vec![2, 15, valid, 0];
+        b.extend_from_slice(&0x123u32.to_le_bytes());
+        b.extend_from_slice(&[0; 4]);
+        b.extend_from_slice(&0x1000u32.to_le_bytes());
+        b.extend_from_slice(&[0; 16]);
+        b.extend_from_slice(&[0, 0, 0, ext]);
+        b.extend_from_slice(&[0; 4]);
+        b.extend((0..held).map(|i| i as u8 + 1));
+        obj(101, 1, 2, 1_000, &b)
+    };
+    let mut file = header(None);
+    let objs = [
+        fd64(64, 64, 0), // complete
+        fd64(64, 40, 0), // 40 of 64 held
+        fd64(64, 64, 32 + 40 + 24), // extended data after 24 data bytes
+    ];
+    file.extend(container(&objs.concat(), true));
+    let mut r = LogReader::from_reader(std::io::Cursor::new(file), "fd64.blf").unwrap();
+    let f = read_all(&mut r);
+    assert_eq!(f.len(), 3);
+    for (fr, held) in f.iter().zip([64usize, 40, 24]) {
+        assert_eq!((fr.len, fr.dlc, fr.iface.as_str()), (64, 15, "can1"));
+        assert!(fr.data[..held].iter().enumerate().all(|(i, &b)| b == i as u8 + 1));
+        assert!(fr.data[held..64].iter().all(|&b| b == 0), "{held}");
+    }
+    let st = r.stats();
+    assert_eq!((st.frames, st.malformed, st.zero_filled), (3, 0, 2));
 }
 
 // ---- synthetic BLF ----

@@ -112,6 +112,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             st.malformed, st.skipped
         );
     }
+    if let Some(note) = st.zero_filled_note() {
+        eprintln!("  input: {note}");
+    }
     let lost = losses.describe();
     if lost.is_empty() {
         eprintln!("  lossless");

@@ -136,6 +136,9 @@ impl Summary {
             self.source.dropped,
             self.source.backwards_timestamps,
         );
+        if let Some(note) = self.source.zero_filled_note() {
+            s.push_str(&format!("\n  {note}"));
+        }
         for k in &self.skips {
             s.push_str(&format!("\n  skipped {}: {}", k.location, k.reason));
         }
@@ -482,6 +485,9 @@ impl MappedSummary {
                 m.timeout_ms,
                 if m.frames == 0 { ", NEVER RECEIVED" } else { "" },
             ));
+        }
+        if let Some(note) = self.source.zero_filled_note() {
+            s.push_str(&format!("\n  {note}"));
         }
         for k in &self.skips {
             s.push_str(&format!("\n  skipped {}: {}", k.location, k.reason));

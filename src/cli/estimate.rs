@@ -285,6 +285,9 @@ fn feed_logs(off: &mut Offline, logs: &[PathBuf], what: &str, tool: &str) -> any
             eprintln!("{tool}: skipped {}: {}", s.location, s.reason);
         }
         let st = crate::source::CanSource::stats(&src);
+        if let Some(note) = st.zero_filled_note() {
+            eprintln!("{tool}: {}: {note}", log.display());
+        }
         anyhow::ensure!(
             st.frames > 0 || st.malformed == 0,
             "{what} {}: no CAN frame could be read from it ({} line(s) or record(s) not \

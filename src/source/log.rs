@@ -115,6 +115,8 @@ pub struct LogReader {
 enum Step {
     /// A frame, written into the caller's `out`.
     Frame,
+    /// A frame written into `out` with data bytes the log did not hold, as 0.
+    ZeroFilled,
     Nothing,
     Dropped(u64),
     Skipped(u64, String),
@@ -340,6 +342,10 @@ impl LogReader {
                     *out = f;
                     Step::Frame
                 }
+                Some(Ok(BlfEvent::ZeroFilled { frame, .. })) => {
+                    *out = frame;
+                    Step::ZeroFilled
+                }
                 Some(Ok(BlfEvent::Other)) => Step::Skipped(0, String::new()),
                 Some(Err(e)) => Step::Malformed(blf.object_index(), e.to_string()),
                 None => Step::End,
@@ -427,6 +433,11 @@ impl LogReader {
         loop {
             match self.step(out)? {
                 Step::Frame => {
+                    self.count(out.kind, out.t_ns);
+                    return Ok(true);
+                }
+                Step::ZeroFilled => {
+                    self.stats.zero_filled += 1;
                     self.count(out.kind, out.t_ns);
                     return Ok(true);
                 }

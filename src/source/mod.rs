@@ -42,6 +42,9 @@ pub struct SourceStats {
     pub backwards_timestamps: u64,
     /// Frames the kernel or logger reported dropped (candump DROPCOUNT, socket overflow).
     pub dropped: u64,
+    /// Frames delivered with data bytes the log did not hold, as 0 (BLF CAN FD objects
+    /// shorter than their declared length, read as Vector's tools read them).
+    pub zero_filled: u64,
 }
 
 impl SourceStats {
@@ -54,6 +57,19 @@ impl SourceStats {
         self.error_frames += b.error_frames;
         self.backwards_timestamps += b.backwards_timestamps;
         self.dropped = self.dropped.saturating_add(b.dropped);
+        self.zero_filled += b.zero_filled;
+    }
+
+    /// What a user should know about frames delivered with bytes the log did not hold, if any.
+    pub fn zero_filled_note(&self) -> Option<String> {
+        (self.zero_filled > 0).then(|| {
+            format!(
+                "{} frame(s) held fewer data bytes in the log than they declare (BLF CAN FD \
+                 objects some loggers cut at 48 bytes); the missing bytes read as 0, as CANoe \
+                 reads them: signals there are not measured",
+                self.zero_filled
+            )
+        })
     }
 }
 

@@ -8,7 +8,9 @@
 //! Every other object type is reported as [`BlfEvent::Other`]. Channel N becomes interface
 //! `can{N-1}`. Times are the header's measurement start (SYSTEMTIME read as UTC; 0 when the
 //! header leaves it empty, as python-can does for non-wall-clock logs) plus the object time
-//! (10 µs or 1 ns units, per the object's flags).
+//! (10 µs or 1 ns units, per the object's flags). A `CAN_FD_MESSAGE_64` whose data field
+//! (up to its extended data, if any) holds fewer bytes than it declares valid, as some loggers
+//! write it, is read as CANoe reads it, the rest as 0 ([`BlfEvent::ZeroFilled`]).
 //!
 //! Memory is constant: one buffer for a compressed container and one for its decompressed
 //! contents (plus the tail of a straddling object), both reused; objects larger than
@@ -41,6 +43,11 @@ const CAN_FD_MESSAGE_64: u32 = 101;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BlfEvent {
     Frame(Frame),
+    /// A `CAN_FD_MESSAGE_64` whose object holds fewer data bytes than it declares valid (some
+    /// loggers write 48 of 64): the frame has the declared length, the bytes the object does
+    /// not hold are 0, as CANoe and binlog.dll (and python-can since its issue 1905) read it.
+    /// `present` is how many data bytes the object held.
+    ZeroFilled { frame: Frame, present: usize },
     /// Any non-CAN object (markers, statistics, other buses).
     Other,
 }
@@ -64,8 +71,6 @@ pub enum BlfError {
     Zlib(String),
     #[error("file ends inside an object (truncated file)")]
     Truncated,
-    #[error("object declares {declared} payload bytes but holds only {present}")]
-    MissingPayload { declared: usize, present: usize },
     #[error("CAN object DLC {0} is out of range (0-15)")]
     Dlc(u8),
     #[error("CAN FD object declares {0} valid data bytes, which no CAN FD frame has (0-8, 12, 16, 20, 24, 32, 48 or 64)")]
@@ -510,10 +515,22 @@ impl<R: Read> BlfReader<R> {
                 f.fd = fl & 0x1000 != 0;
                 f.brs = fl & 0x2000 != 0;
                 f.esi = fl & 0x4000 != 0;
-                let payload = &b[40..];
-                if payload.len() < valid.min(64) {
-                    return Err(BlfError::MissingPayload {
-                        declared: valid,
+                // The data field ends where the extended data starts (an offset from the
+                // object's start; 0: none) or with the object.
+                let ext = b[35] as usize;
+                let end = if ext > body_at + 40 {
+                    (ext - body_at).min(b.len())
+                } else {
+                    b.len()
+                };
+                let payload = &b[40..end];
+                let want = valid.min(64);
+                if payload.len() < want && fl & 0x10 == 0 {
+                    let mut padded = [0u8; 64];
+                    padded[..payload.len()].copy_from_slice(payload);
+                    self.fill(&mut f, false, dlc, valid, &padded[..want])?;
+                    return Ok(BlfEvent::ZeroFilled {
+                        frame: f,
                         present: payload.len(),
                     });
                 }
