@@ -124,6 +124,11 @@ fn fuzz_asc_reader() {
 }
 
 #[test]
+fn fuzz_trc_reader() {
+    fuzz("trc");
+}
+
+#[test]
 fn fuzz_blf_reader() {
     fuzz("blf");
 }
@@ -149,7 +154,7 @@ fn every_target_has_a_test_and_seeds() {
         .lines()
         .map(str::to_string)
         .collect();
-    assert_eq!(targets, ["candump", "asc", "blf", "dbc", "journal"]);
+    assert_eq!(targets, ["candump", "asc", "trc", "blf", "dbc", "journal"]);
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fuzz");
     let mut total = 0u64;
     for t in &targets {

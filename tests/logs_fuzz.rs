@@ -81,6 +81,31 @@ fn asc_vocab() -> impl Strategy<Value = String> {
     prop::collection::vec(tok, 0..40).prop_map(|v| v.join(" "))
 }
 
+fn trc_vocab() -> impl Strategy<Value = String> {
+    let tok = prop_oneof![
+        Just(";$FILEVERSION=1.1\n".to_string()),
+        Just(";$FILEVERSION=1.3\n".to_string()),
+        Just(";$FILEVERSION=2.0\n".to_string()),
+        Just(";$FILEVERSION=2.1\n".to_string()),
+        Just(";$STARTTIME=44548.6028595139\n".to_string()),
+        Just(";$COLUMNS=N,O,T,B,I,d,R,L,D\n".to_string()),
+        Just(";$COLUMNS=N,O,T,I,d,l,D\n".to_string()),
+        Just(";$COLUMNS=D,O,T,I\n".to_string()),
+        prop::sample::select(vec![
+            "DT", "FD", "FB", "FE", "BI", "RR", "ER", "ST", "Rx", "Tx", "Warng", "RTR", "-", "--"
+        ])
+        .prop_map(str::to_string),
+        Just(")".to_string()),
+        Just(" ".to_string()),
+        Just("\n".to_string()),
+        "[0-9]{1,14}(\\.[0-9]{0,8})?\\)?",
+        "[0-9a-fA-F]{1,9}",
+        "[0-9]{1,3}",
+        "\\PC{0,4}",
+    ];
+    prop::collection::vec(tok, 0..40).prop_map(|v| v.join(" "))
+}
+
 /// A BLF built from object headers with arbitrary (often inconsistent) fields, inside
 /// containers that are compressed, stored, or garbage.
 fn blf_bytes() -> impl Strategy<Value = Vec<u8>> {
@@ -246,9 +271,10 @@ proptest! {
     #[test]
     fn log_reader_survives_arbitrary_bytes(
         bytes in prop::collection::vec(any::<u8>(), 0..2000),
-        which in 0u8..3,
+        which in 0u8..4,
     ) {
-        let format = [LogFormat::Candump, LogFormat::Asc, LogFormat::Blf][which as usize];
+        let format =
+            [LogFormat::Candump, LogFormat::Asc, LogFormat::Blf, LogFormat::Trc][which as usize];
         drain_checked(bytes, format);
     }
 
@@ -260,6 +286,11 @@ proptest! {
     #[test]
     fn asc_reader_survives_near_valid_files(s in asc_vocab()) {
         drain_checked(s.into_bytes(), LogFormat::Asc);
+    }
+
+    #[test]
+    fn trc_reader_survives_near_valid_files(s in trc_vocab()) {
+        drain_checked(s.into_bytes(), LogFormat::Trc);
     }
 
     #[test]

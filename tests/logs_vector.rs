@@ -182,7 +182,10 @@ fn python_can_blf_fixtures() {
     let (f, st, _) = open(&format!("{d}/issue_1905.blf")).unwrap();
     assert_eq!((st.frames, st.malformed, st.zero_filled), (22, 0, 22));
     let f0 = &f[0];
-    assert_eq!((f0.iface.as_str(), f0.id, f0.extended), ("can6", 0x6A9, false));
+    assert_eq!(
+        (f0.iface.as_str(), f0.id, f0.extended),
+        ("can6", 0x6A9, false)
+    );
     assert!(f0.fd && f0.brs);
     assert_eq!((f0.len, f0.dlc), (64, 15));
     assert!(f0.data[..48].iter().all(|&b| b == 0xFF));
@@ -211,8 +214,8 @@ fn blf_fd64_object_short_of_its_valid_bytes_is_zero_filled() {
     };
     let mut file = header(None);
     let objs = [
-        fd64(64, 64, 0), // complete
-        fd64(64, 40, 0), // 40 of 64 held
+        fd64(64, 64, 0),            // complete
+        fd64(64, 40, 0),            // 40 of 64 held
         fd64(64, 64, 32 + 40 + 24), // extended data after 24 data bytes
     ];
     file.extend(container(&objs.concat(), true));
@@ -221,11 +224,82 @@ fn blf_fd64_object_short_of_its_valid_bytes_is_zero_filled() {
     assert_eq!(f.len(), 3);
     for (fr, held) in f.iter().zip([64usize, 40, 24]) {
         assert_eq!((fr.len, fr.dlc, fr.iface.as_str()), (64, 15, "can1"));
-        assert!(fr.data[..held].iter().enumerate().all(|(i, &b)| b == i as u8 + 1));
+        assert!(fr.data[..held]
+            .iter()
+            .enumerate()
+            .all(|(i, &b)| b == i as u8 + 1));
         assert!(fr.data[held..64].iter().all(|&b| b == 0), "{held}");
     }
     let st = r.stats();
     assert_eq!((st.frames, st.malformed, st.zero_filled), (3, 0, 2));
+}
+
+/// python-can's TRC fixtures: the same trace (PCAN-View 1.1, converted by PEAK-Converter to
+/// 1.0, 1.3, 2.0 and 2.1) reads as the same 11 frames in every version, the status line
+/// skipped; python-can 4.6's `TRCReader` reads the same frames and times.
+#[test]
+fn python_can_trc_fixtures() {
+    let d = "logs/python-can/test_data";
+    let Some((f21, st, r)) = open(&format!("{d}/test_CanMessage_V2_1.trc")) else {
+        return;
+    };
+    assert_eq!(r.format(), LogFormat::Trc);
+    assert_eq!((st.frames, st.skipped, st.malformed), (11, 1, 0));
+    // $STARTTIME=44548.6028595139 (days since 1899-12-30): 2021-12-18 14:28:07.062001 UTC, the
+    // "Start time: 18.12.2021 14:28:07.062.001" its comment states.
+    assert_eq!(r.start_epoch_ns(), Some(1_639_837_687_062_001_000));
+    let (first, last) = (&f21[0], &f21[10]);
+    assert_eq!(first.t_ns, 1_639_837_687_062_001_000 + 17_535_400_000);
+    assert_eq!((first.id, first.extended, first.len), (0x100, true, 8));
+    assert_eq!(
+        (first.iface.as_str(), first.kind),
+        ("can0", FrameKind::Data)
+    );
+    assert_eq!(
+        (f21[3].id, f21[3].extended),
+        (0, false),
+        "4 hex digits: standard"
+    );
+    assert_eq!(
+        (last.id, last.kind, last.dlc),
+        (0x704, FrameKind::Remote, 1)
+    );
+    for name in [
+        "test_CanMessage_V1_1.trc",
+        "test_CanMessage_V1_3.trc",
+        "test_CanMessage_V2_0_BUS1.trc",
+    ] {
+        let (f, st, _) = open(&format!("{d}/{name}")).unwrap();
+        assert_eq!((st.frames, st.malformed), (11, 0), "{name}");
+        for (a, b) in f.iter().zip(&f21) {
+            assert_eq!(
+                (a.id, a.extended, a.kind, a.dlc, a.data),
+                (b.id, b.extended, b.kind, b.dlc, b.data),
+                "{name}"
+            );
+            assert!(
+                (a.t_ns - b.t_ns).abs() <= 1_000,
+                "{name}: {} vs {}",
+                a.t_ns,
+                b.t_ns
+            );
+        }
+    }
+    // 1.0: no start time, whole milliseconds.
+    let (f10, st, r) = open(&format!("{d}/test_CanMessage_V1_0_BUS1.trc")).unwrap();
+    assert_eq!((st.frames, st.skipped, r.start_epoch_ns()), (11, 1, None));
+    assert_eq!(
+        (f10[0].t_ns, f10[10].kind),
+        (17_535_000_000, FrameKind::Remote)
+    );
+    // 2.1 with two buses.
+    let (f, _, _) = open(&format!("{d}/test_CanMessage.trc")).unwrap();
+    assert_eq!(f.len(), 2);
+    assert_eq!(
+        (f[0].iface.as_str(), f[0].id, f[0].data[0]),
+        ("can1", 0xC8, 0x09)
+    );
+    assert_eq!((f[1].iface.as_str(), f[1].id), ("can0", 0x6F9));
 }
 
 // ---- synthetic BLF ----

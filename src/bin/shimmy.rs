@@ -13,9 +13,9 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Cmd {
-    /// Decode CAN logs (candump -L, ASC, BLF, MF4) with a DBC file, like `cantools decode`.
+    /// Decode CAN logs (candump -L, ASC, BLF, MF4, TRC) with a DBC file, like `cantools decode`.
     Decode(shimmy::cli::decode::Args),
-    /// Convert a CAN log between candump -L, Vector ASC, BLF and ASAM MDF 4 (.mf4).
+    /// Convert a CAN log between candump -L, Vector ASC, BLF and ASAM MDF 4 (.mf4); reads PEAK TRC too.
     Convert(shimmy::cli::convert::Args),
     /// Estimate steering-joint clearance from one vehicle's CAN logs (braking events, model table).
     Estimate(shimmy::cli::estimate::Args),

@@ -12,7 +12,7 @@ use shimmy::daemon::sandbox;
 /// them to a crash-safe journal.
 ///
 /// Live: `shimmyd --config /etc/shimmyd/shimmyd.toml` reads the interfaces of `[input]`. Replay:
-/// `shimmyd --config FILE --replay LOG...` plays the logs (candump -L, ASC, BLF, MF4) at their
+/// `shimmyd --config FILE --replay LOG...` plays the logs (candump -L, ASC, BLF, MF4, TRC) at their
 /// recorded timing, or as fast as possible with `--fast`, then exits.
 ///
 /// Outputs: the journal (`outputs.journal_dir`, JSON lines with sequence numbers and CRCs; read

@@ -1,4 +1,5 @@
-//! `shimmy convert`: one CAN log format to another (candump -L, Vector ASC, BLF, ASAM MDF 4),
+//! `shimmy convert`: one CAN log format to another (candump -L, Vector ASC, BLF, ASAM MDF 4;
+//! PEAK TRC as input only),
 //! streaming, like python-can's `can.logconvert`.
 
 use std::path::PathBuf;
@@ -32,8 +33,8 @@ pub enum Compression {
 const MANUAL: &str = "\
 Converts a CAN log from one format to another, frame by frame in constant memory. The input
 format is recognised by content (as `shimmy decode` does: candump -L, Vector ASC, BLF, ASAM
-MDF 4 `.mf4` including unfinalized logger files, gzip-compressed text); the output format by
-OUT's extension: `.mf4`, `.asc`, `.blf`, anything else candump -L.
+MDF 4 `.mf4` including unfinalized logger files, PEAK TRC 1.0-2.1, gzip-compressed text); the
+output format by OUT's extension: `.mf4`, `.asc`, `.blf`, anything else but `.trc` candump -L.
 
 Lossless where the output format allows; at the end it prints what it could not keep:
   candump -L, MF4   everything a frame holds (ns times, interface names, CAN FD flags,
@@ -74,6 +75,17 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     if args.input == args.output {
         bail!("IN and OUT are the same file");
+    }
+    if args
+        .output
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("trc"))
+    {
+        bail!(
+            "{}: PEAK TRC is read, not written; give OUT the extension .log (candump -L), \
+             .asc, .blf or .mf4",
+            args.output.display()
+        );
     }
     let mut r = LogReader::open(&args.input)
         .with_context(|| format!("cannot read {}", args.input.display()))?;

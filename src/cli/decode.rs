@@ -19,7 +19,7 @@ use crate::wire::{Frame, FrameKind};
 
 /// The manual part of `shimmy decode --help`.
 const MANUAL: &str = "\
-Reads each LOG in turn (candump -L, Vector ASC, BLF or ASAM MDF 4, detected from the content)
+Reads each LOG in turn (candump -L, Vector ASC, BLF, ASAM MDF 4 or PEAK TRC, detected from the content)
 and prints one record per frame whose ID the DBC defines. Value-table entries stay numbers. At
 the end a summary goes to stderr: frames read, decoded, with unknown IDs, refused (a
 multiplexer value the DBC does not define, as cantools refuses them), short frames whose

@@ -26,7 +26,7 @@ pub enum Format {
 /// Sources (exactly one):
 ///   --journal DIR   shimmyd's journal directory (complete: traces, trend, alert history)
 ///   --state DIR     shimmyd's state directory (latest estimate and recent events only)
-///   LOG...          CAN logs (candump -L, ASC, BLF, MF4) of one vehicle in time order,
+///   LOG...          CAN logs (candump -L, ASC, BLF, MF4, TRC) of one vehicle in time order,
 ///                   replayed through the daemon's pipeline with the car of --profile (its
 ///                   DBC, mapping and table; default thresholds) or with --config's car and
 ///                   thresholds

@@ -615,7 +615,7 @@ pub fn evaluate(fp: &Fingerprint) -> Identification {
                 .iter()
                 .find(|p| p.messages.iter().any(|m| m.frames > 0));
             let summary = if fp.frames == 0 {
-                "unknown: no frames read (is it a candump -L, Vector ASC or BLF log?)".into()
+                "unknown: no frames read (is it a candump -L, Vector ASC, BLF, MF4 or PEAK TRC log?)".into()
             } else {
                 match closest {
                     Some(c) => format!(
@@ -743,7 +743,7 @@ pub fn identify_logs_with(
     if id.frames_read == 0 && malformed > 0 {
         id.summary = format!(
             "unknown: no frames read; the log reader could not parse {malformed} line(s) or \
-             record(s) (it reads candump -L, Vector ASC, BLF and MF4)"
+             record(s) (it reads candump -L, Vector ASC, BLF, MF4 and PEAK TRC)"
         );
     }
     id.not_loaded = cat.not_loaded.clone();

@@ -3,8 +3,8 @@
 //! an `MDF     ` or `UnFinMF ` identification is ASAM MDF 4 (bus logging, [`crate::wire::mf4`];
 //! it needs a seekable file, so not gzip-compressed); a `LOGG` signature is Vector BLF; a Vector
 //! ASC header (`date`, `base`, `Begin Triggerblock`)
-//! is ASC; otherwise `.blf` / `.asc` extensions decide, and everything else is read as
-//! can-utils `candump -L`. A gzip-compressed file (`.log.gz`, `.asc.gz`) is decompressed on
+//! is ASC; a `;$FILEVERSION` line is a PEAK TRC trace; otherwise `.blf` / `.asc` / `.trc`
+//! extensions decide, and everything else is read as can-utils `candump -L`. A gzip-compressed file (`.log.gz`, `.asc.gz`) is decompressed on
 //! the fly and the same rules applied to its contents.
 //!
 //! Policy lives here, not in [`crate::wire`]: a malformed line or record is counted in
@@ -20,6 +20,7 @@ use crate::wire::asc::{AscLine, AscParser};
 use crate::wire::blf::{BlfEvent, BlfReader};
 use crate::wire::candump::{self, Parsed};
 use crate::wire::mf4::{self, Mf4Reader, Mf4Step};
+use crate::wire::trc::{TrcLine, TrcParser};
 use crate::wire::{Frame, FrameKind};
 use std::fs::File;
 use std::io::{self, Read, Seek};
@@ -39,6 +40,8 @@ pub enum LogFormat {
     Blf,
     /// ASAM MDF 4 bus logging (`.mf4`).
     Mf4,
+    /// PEAK-System TRC trace (text, versions 1.0 to 2.1).
+    Trc,
 }
 
 impl LogFormat {
@@ -68,6 +71,9 @@ impl LogFormat {
         if f.starts_with(b"(") || f.starts_with(b"dropcount") {
             return LogFormat::Candump;
         }
+        if f.starts_with(b";$fileversion") {
+            return LogFormat::Trc;
+        }
         match name
             .extension()
             .and_then(|e| e.to_str())
@@ -77,6 +83,7 @@ impl LogFormat {
             Some("blf") => LogFormat::Blf,
             Some("mf4") => LogFormat::Mf4,
             Some("asc") => LogFormat::Asc,
+            Some("trc") => LogFormat::Trc,
             _ => LogFormat::Candump,
         }
     }
@@ -91,6 +98,7 @@ impl<T: Read + Seek + Send> ReadSeek for T {}
 enum Kind {
     Candump(LineReader<BoxRead>),
     Asc(LineReader<BoxRead>, AscParser),
+    Trc(LineReader<BoxRead>, TrcParser),
     Blf(BlfReader<BoxRead>),
     Mf4(Box<Mf4Reader<Box<dyn ReadSeek>>>),
 }
@@ -235,6 +243,7 @@ impl LogReader {
         let kind = match format {
             LogFormat::Candump => Kind::Candump(LineReader::new(reader)),
             LogFormat::Asc => Kind::Asc(LineReader::new(reader), AscParser::new()),
+            LogFormat::Trc => Kind::Trc(LineReader::new(reader), TrcParser::new()),
             LogFormat::Blf => Kind::Blf(BlfReader::new(reader)),
             // Not seekable: read as candump, which reports every record as malformed.
             LogFormat::Mf4 => Kind::Candump(LineReader::new(reader)),
@@ -267,12 +276,13 @@ impl LogReader {
         self.format
     }
 
-    /// For ASC, BLF and MF4: the wall-clock start of the measurement in ns since the Unix
+    /// For ASC, TRC, BLF and MF4: the wall-clock start of the measurement in ns since the Unix
     /// epoch (as the file's header states it, read as UTC), which the frame timestamps include.
     pub fn start_epoch_ns(&self) -> Option<i64> {
         match &self.kind {
             Kind::Candump(_) => None,
             Kind::Asc(_, p) => p.start_epoch_ns(),
+            Kind::Trc(_, p) => p.start_epoch_ns(),
             Kind::Blf(b) => b.start_epoch_ns(),
             Kind::Mf4(m) => Some(m.start_epoch_ns()),
         }
@@ -334,6 +344,21 @@ impl LogReader {
                     }
                     Ok(AscLine::Header) => Step::Nothing,
                     Ok(AscLine::OtherEvent) => Step::Skipped(0, String::new()),
+                    Err(e) => Step::Malformed(lines.line_no(), half_written(e, terminated)),
+                })
+            }
+            Kind::Trc(lines, parser) => {
+                let (bytes, terminated) = match next_text(lines)? {
+                    Ok(text) => text,
+                    Err(step) => return Ok(step),
+                };
+                Ok(match parser.parse_line(bytes) {
+                    Ok(TrcLine::Frame(f)) => {
+                        *out = f;
+                        Step::Frame
+                    }
+                    Ok(TrcLine::Header) => Step::Nothing,
+                    Ok(TrcLine::OtherEvent) => Step::Skipped(0, String::new()),
                     Err(e) => Step::Malformed(lines.line_no(), half_written(e, terminated)),
                 })
             }

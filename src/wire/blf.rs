@@ -47,7 +47,10 @@ pub enum BlfEvent {
     /// loggers write 48 of 64): the frame has the declared length, the bytes the object does
     /// not hold are 0, as CANoe and binlog.dll (and python-can since its issue 1905) read it.
     /// `present` is how many data bytes the object held.
-    ZeroFilled { frame: Frame, present: usize },
+    ZeroFilled {
+        frame: Frame,
+        present: usize,
+    },
     /// Any non-CAN object (markers, statistics, other buses).
     Other,
 }

@@ -32,7 +32,7 @@ ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 FUZZ_DIR=$ROOT/tests/fuzz
 TARGET_DIR=${SHIMMY_FUZZ_TARGET_DIR:-$ROOT/target/fuzz}
 TOOLS=$ROOT/target/ci-tools
-TARGETS=(candump asc blf dbc journal)
+TARGETS=(candump asc trc blf dbc journal)
 export PATH=$TOOLS/bin:$PATH
 
 log() { echo "fuzz.sh: $*" >&2; }
