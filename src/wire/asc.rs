@@ -29,7 +29,7 @@
 //!
 //! Not here: reading files or deciding what a bad line means ([`crate::source::log`]).
 
-use super::frame::{fd_dlc_to_len, fd_len_to_dlc, Frame, FrameKind, IfaceName};
+use super::frame::{fd_dlc_to_len, fd_len_to_dlc, ChannelNames, Frame, FrameKind, IfaceName};
 
 /// `CAN_ERR_PROT`: the SocketCAN error class used for ASC/BLF error frames.
 pub const CAN_ERR_PROT: u32 = 0x08;
@@ -82,7 +82,7 @@ pub struct AscParser {
     relative: bool,
     start_ns: Option<i64>,
     last_t_ns: i64,
-    ifaces: [IfaceName; 16],
+    ifaces: ChannelNames,
 }
 
 impl Default for AscParser {
@@ -91,28 +91,26 @@ impl Default for AscParser {
     }
 }
 
-fn tokens(line: &[u8]) -> impl Iterator<Item = &[u8]> {
+/// The white-space separated tokens of a text log line (ASC, TRC).
+pub(crate) fn tokens(line: &[u8]) -> impl Iterator<Item = &[u8]> {
     line.split(|&b| b == b' ' || b == b'\t')
         .filter(|t| !t.is_empty())
 }
 
-fn lossy(t: &[u8]) -> String {
+/// A token as text for an error message.
+pub(crate) fn lossy(t: &[u8]) -> String {
     String::from_utf8_lossy(t).into_owned()
 }
 
 impl AscParser {
     /// A parser with the ASC defaults (hex base, absolute timestamps).
     pub fn new() -> AscParser {
-        let mut ifaces = [IfaceName::new(); 16];
-        for (i, n) in ifaces.iter_mut().enumerate() {
-            *n = IfaceName::from_str_truncated(&format!("can{i}"));
-        }
         AscParser {
             hex: true,
             relative: false,
             start_ns: None,
             last_t_ns: 0,
-            ifaces,
+            ifaces: ChannelNames::new(),
         }
     }
 
@@ -253,11 +251,7 @@ impl AscParser {
     }
 
     fn iface(&self, ch: u32) -> IfaceName {
-        let i = ch.saturating_sub(1) as usize;
-        match self.ifaces.get(i) {
-            Some(n) => *n,
-            None => IfaceName::from_str_truncated(&format!("can{i}")),
-        }
+        self.ifaces.get(ch)
     }
 
     fn error_frame(&self, t_ns: i64, ch: u32) -> Frame {

@@ -24,7 +24,7 @@
 //! Not here: counting or reporting skips ([`crate::source::log`]).
 
 use super::asc::{days_from_civil, CAN_ERR_PROT};
-use super::frame::{fd_dlc_to_len, fd_len_to_dlc, Frame, FrameKind, IfaceName};
+use super::frame::{fd_dlc_to_len, fd_len_to_dlc, ChannelNames, Frame, FrameKind, IfaceName};
 use flate2::{Decompress, FlushDecompress, Status};
 use std::io::{self, Read};
 
@@ -93,7 +93,7 @@ pub struct BlfReader<R> {
     z: Decompress,
     file_offset: u64,
     objects: u64,
-    ifaces: [IfaceName; 16],
+    ifaces: ChannelNames,
     done: bool,
     /// An object header found by resynchronisation, to be read next.
     pending: Option<[u8; 16]>,
@@ -131,10 +131,6 @@ fn read_full<R: Read>(r: &mut R, buf: &mut [u8]) -> io::Result<Result<bool, BlfE
 
 impl<R: Read> BlfReader<R> {
     pub fn new(inner: R) -> Self {
-        let mut ifaces = [IfaceName::new(); 16];
-        for (i, n) in ifaces.iter_mut().enumerate() {
-            *n = IfaceName::from_str_truncated(&format!("can{i}"));
-        }
         BlfReader {
             inner,
             started: false,
@@ -145,7 +141,7 @@ impl<R: Read> BlfReader<R> {
             z: Decompress::new(true),
             file_offset: 0,
             objects: 0,
-            ifaces,
+            ifaces: ChannelNames::new(),
             done: false,
             pending: None,
         }
@@ -425,11 +421,7 @@ impl<R: Read> BlfReader<R> {
     }
 
     fn iface(&self, ch: u32) -> IfaceName {
-        let i = ch.saturating_sub(1) as usize;
-        match self.ifaces.get(i) {
-            Some(n) => *n,
-            None => IfaceName::from_str_truncated(&format!("can{i}")),
-        }
+        self.ifaces.get(ch)
     }
 
     /// One whole object (`obj` starts with its `LOBJ` base header).

@@ -15,6 +15,30 @@ pub struct IfaceName {
     len: u8,
 }
 
+/// The interface names `can0`..`can15` of log channels 1..16 (the number logs count from),
+/// made once so a frame's name costs no formatting; higher channels are named on demand.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ChannelNames([IfaceName; 16]);
+
+impl ChannelNames {
+    pub(crate) fn new() -> ChannelNames {
+        let mut n = [IfaceName::new(); 16];
+        for (i, x) in n.iter_mut().enumerate() {
+            *x = IfaceName::from_str_truncated(&format!("can{i}"));
+        }
+        ChannelNames(n)
+    }
+
+    /// The name of channel `ch` (1-based): `can{ch-1}`; channel 0 is `can0` too.
+    pub(crate) fn get(&self, ch: u32) -> IfaceName {
+        let i = ch.saturating_sub(1) as usize;
+        match self.0.get(i) {
+            Some(n) => *n,
+            None => IfaceName::from_str_truncated(&format!("can{i}")),
+        }
+    }
+}
+
 impl IfaceName {
     /// An empty name.
     pub const fn new() -> IfaceName {

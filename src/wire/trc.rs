@@ -23,8 +23,8 @@
 //! What this is not: a writer, or policy on bad lines (the log source counts and reports
 //! them). A data line allocates nothing.
 
-use super::asc::CAN_ERR_PROT;
-use super::frame::{fd_dlc_to_len, fd_len_to_dlc, Frame, FrameKind, IfaceName};
+use super::asc::{lossy, tokens, CAN_ERR_PROT};
+use super::frame::{fd_dlc_to_len, fd_len_to_dlc, ChannelNames, Frame, FrameKind, IfaceName};
 
 /// What one TRC line is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -84,22 +84,13 @@ pub struct TrcParser {
     cols: [Col; MAX_COLS],
     n_cols: usize,
     start_ns: Option<i64>,
-    ifaces: [IfaceName; 16],
+    ifaces: ChannelNames,
 }
 
 impl Default for TrcParser {
     fn default() -> Self {
         Self::new()
     }
-}
-
-fn tokens(line: &[u8]) -> impl Iterator<Item = &[u8]> {
-    line.split(|&b| b == b' ' || b == b'\t')
-        .filter(|t| !t.is_empty())
-}
-
-fn lossy(t: &[u8]) -> String {
-    String::from_utf8_lossy(t).into_owned()
 }
 
 /// The 2.0 default columns (`$COLUMNS` absent).
@@ -128,16 +119,12 @@ const COLS_21: [Col; 9] = [
 impl TrcParser {
     /// A parser for a file that has not yet said its version (1.0 until it does).
     pub fn new() -> TrcParser {
-        let mut ifaces = [IfaceName::new(); 16];
-        for (i, n) in ifaces.iter_mut().enumerate() {
-            *n = IfaceName::from_str_truncated(&format!("can{i}"));
-        }
         TrcParser {
             version: (1, 0),
             cols: [Col::Data; MAX_COLS],
             n_cols: 0,
             start_ns: None,
-            ifaces,
+            ifaces: ChannelNames::new(),
         }
     }
 
@@ -234,11 +221,7 @@ impl TrcParser {
     }
 
     fn iface(&self, bus: u32) -> IfaceName {
-        let i = bus.saturating_sub(1) as usize;
-        match self.ifaces.get(i) {
-            Some(n) => *n,
-            None => IfaceName::from_str_truncated(&format!("can{i}")),
-        }
+        self.ifaces.get(bus)
     }
 
     /// Versions 1.0 to 1.3: fixed columns.
