@@ -1,7 +1,7 @@
 """shimmy-monitor from Python.
 
 Brake-induced steering shimmy and steering-joint clearance, estimated from a vehicle's CAN logs
-(candump -L, Vector ASC, BLF, ASAM MDF 4). Every function here calls the same Rust code as the
+(candump -L, Vector ASC, BLF, ASAM MDF 4, PEAK TRC). Every function here calls the same Rust code as the
 ``shimmy`` command it mirrors, so results are those of the CLI:
 
 =========================================  ==============================================
@@ -60,7 +60,7 @@ def model_version() -> str:
 def decode(log: Union[PathLike, Sequence[PathLike]], dbc: PathLike):
     """Decode CAN log(s) with a DBC file, streamed as Arrow record batches.
 
-    :param log: a log file (candump -L, Vector ASC, BLF or ASAM MDF 4, detected from the
+    :param log: a log file (candump -L, Vector ASC, BLF, ASAM MDF 4 or PEAK TRC, detected from the
         content) or a list of them, read in order.
     :param dbc: the DBC file describing the bus.
     :returns: a ``pyarrow.RecordBatchReader`` with one row per decoded signal, the rows
