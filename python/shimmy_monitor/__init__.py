@@ -1,8 +1,8 @@
 """shimmy-monitor from Python.
 
 Brake-induced steering shimmy and steering-joint clearance, estimated from a vehicle's CAN logs
-(candump -L, Vector ASC, BLF, ASAM MDF 4, PEAK TRC). Every function here calls the same Rust code as the
-``shimmy`` command it mirrors, so results are those of the CLI:
+(candump -L, Vector ASC, BLF, ASAM MDF 4, PEAK TRC). Every function here calls the same Rust
+code as the ``shimmy`` command it mirrors, so results are those of the CLI:
 
 =========================================  ==============================================
 ``decode(log, dbc)``                       ``shimmy decode --dbc DBC --format csv LOG``
