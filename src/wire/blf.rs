@@ -45,7 +45,7 @@ pub enum BlfEvent {
     Frame(Frame),
     /// A `CAN_FD_MESSAGE_64` whose object holds fewer data bytes than it declares valid (some
     /// loggers write 48 of 64): the frame has the declared length, the bytes the object does
-    /// not hold are 0, as CANoe and binlog.dll (and python-can since its issue 1905) read it.
+    /// not hold are 0, as CANoe, binlog.dll and python-can read it.
     /// `present` is how many data bytes the object held.
     ZeroFilled {
         frame: Frame,
