@@ -177,3 +177,23 @@ fn losses_are_reported_exactly() {
         assert_eq!(l.times_clamped, 0);
     }
 }
+
+/// TRC is read, not written: a `.trc` output is refused before anything is created, by the
+/// writer every tool uses (not candump text under a TRC name).
+#[test]
+fn trc_output_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.trc");
+    let e = LogWriter::create(&out, Mf4WriterOptions::default())
+        .err()
+        .expect("a .trc output is refused");
+    assert_eq!(e.kind(), std::io::ErrorKind::InvalidInput);
+    assert!(e.to_string().contains("PEAK TRC is read, not written"), "{e}");
+    assert!(!out.exists());
+    let input = dir.path().join("in.log");
+    std::fs::write(&input, "(1.000000) can0 123#11\n").unwrap();
+    let o = shimmy(&["convert", input.to_str().unwrap(), out.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("PEAK TRC is read, not written"));
+    assert!(!out.exists());
+}

@@ -297,7 +297,7 @@ impl LogOut {
                     .with_context(|| format!("cannot create directory {}", dir.display()))?;
             }
         }
-        if out.as_os_str() != "-" && OutFormat::from_path(out) != OutFormat::Candump {
+        if out.as_os_str() != "-" && OutFormat::from_path(out)? != OutFormat::Candump {
             let w = LogWriter::create(out, Default::default())
                 .with_context(|| format!("cannot create log {}", out.display()))?;
             return Ok(LogOut {

@@ -15,7 +15,8 @@ struct Cli {
 enum Cmd {
     /// Decode CAN logs (candump -L, ASC, BLF, MF4, TRC) with a DBC file, like `cantools decode`.
     Decode(shimmy::cli::decode::Args),
-    /// Convert a CAN log between candump -L, Vector ASC, BLF and ASAM MDF 4 (.mf4); reads PEAK TRC too.
+    /// Convert a CAN log between candump -L, Vector ASC, BLF and ASAM MDF 4 (.mf4), or from PEAK
+    /// TRC.
     Convert(shimmy::cli::convert::Args),
     /// Estimate steering-joint clearance from one vehicle's CAN logs (braking events, model table).
     Estimate(shimmy::cli::estimate::Args),

@@ -76,17 +76,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.input == args.output {
         bail!("IN and OUT are the same file");
     }
-    if args
-        .output
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("trc"))
-    {
-        bail!(
-            "{}: PEAK TRC is read, not written; give OUT the extension .log (candump -L), \
-             .asc, .blf or .mf4",
-            args.output.display()
-        );
-    }
+    let out_format = crate::source::writer::OutFormat::from_path(&args.output)?;
     let mut r = LogReader::open(&args.input)
         .with_context(|| format!("cannot read {}", args.input.display()))?;
     let opts = Mf4WriterOptions {
@@ -113,7 +103,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     eprintln!(
         "shimmy convert: {frames} frames {:?} -> {:?}",
         r.format(),
-        crate::source::writer::OutFormat::from_path(&args.output)
+        out_format
     );
     for s in r.take_skips() {
         eprintln!("  skipped {}: {}", s.location, s.reason);

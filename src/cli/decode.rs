@@ -19,9 +19,9 @@ use crate::wire::{Frame, FrameKind};
 
 /// The manual part of `shimmy decode --help`.
 const MANUAL: &str = "\
-Reads each LOG in turn (candump -L, Vector ASC, BLF, ASAM MDF 4 or PEAK TRC, detected from the content)
-and prints one record per frame whose ID the DBC defines. Value-table entries stay numbers. At
-the end a summary goes to stderr: frames read, decoded, with unknown IDs, refused (a
+Reads each LOG in turn (candump -L, Vector ASC, BLF, ASAM MDF 4 or PEAK TRC, detected from
+the content) and prints one record per frame whose ID the DBC defines. Value-table entries stay
+numbers. At the end a summary goes to stderr: frames read, decoded, with unknown IDs, refused (a
 multiplexer value the DBC does not define, as cantools refuses them), short frames whose
 missing signals were left out, remote/error frames, and what the log reader skipped (with
 file:line).

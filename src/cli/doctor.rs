@@ -16,9 +16,9 @@ use crate::profile::Profile;
 
 /// The manual part of `shimmy doctor --help`.
 const MANUAL: &str = "\
-For a new car or a suspicious log: reads the LOGs (candump -L, Vector ASC, BLF, MF4 or PEAK TRC) once through
-the mapping of --profile (or --mapping with its DBC; with neither, the profile `shimmy
-identify` finds in the first 30 s of the logs) and reports
+For a new car or a suspicious log: reads the LOGs (candump -L, Vector ASC, BLF, MF4 or PEAK
+TRC) once through the mapping of --profile (or --mapping with its DBC; with neither, the
+profile `shimmy identify` finds in the first 30 s of the logs) and reports
 
   signals      per mapped quantity: source, samples, rate, range
   messages     per mapped message: frames, accepted, checksum and counter errors, frames lost

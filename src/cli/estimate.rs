@@ -26,12 +26,12 @@ use crate::source::CanSource;
 
 /// Estimate steering-joint clearance from one vehicle's CAN logs.
 ///
-/// Reads the LOGs in the order given (candump -L, Vector ASC, BLF, MF4 or PEAK TRC), decodes them with the DBC
-/// named by the mapping (or --dbc), finds braking events (brake applied, 0.3–0.8 g, 20–120 km/h,
-/// nearly straight; others are listed but not used), measures the steering-wheel shimmy of each
-/// (MODEL.md §11: 3–25 Hz band-pass peak over the braking window, plus a noise-corrected
-/// amplitude), and, with a response table from `shimmy calibrate`, accumulates the events into a
-/// posterior over the joint clearance.
+/// Reads the LOGs in the order given (candump -L, Vector ASC, BLF, MF4 or PEAK TRC), decodes
+/// them with the DBC named by the mapping (or --dbc), finds braking events (brake applied,
+/// 0.3–0.8 g, 20–120 km/h, nearly straight; others are listed but not used), measures the
+/// steering-wheel shimmy of each (MODEL.md §11: 3–25 Hz band-pass peak over the braking window,
+/// plus a noise-corrected amplitude), and, with a response table from `shimmy calibrate`,
+/// accumulates the events into a posterior over the joint clearance.
 ///
 /// Output (one JSON object; --format text prints a short summary instead):
 ///   clearance_mm    posterior median (mm), null when below the detection limit
@@ -291,8 +291,8 @@ fn feed_logs(off: &mut Offline, logs: &[PathBuf], what: &str, tool: &str) -> any
         anyhow::ensure!(
             st.frames > 0 || st.malformed == 0,
             "{what} {}: no CAN frame could be read from it ({} line(s) or record(s) not \
-             understood): not a log the readers know (candump -L, Vector ASC, BLF, MF4, PEAK TRC), or a \
-             corrupt one (the reader's first complaints are above)",
+             understood): not a log the readers know (candump -L, Vector ASC, BLF, MF4, PEAK \
+             TRC), or a corrupt one (the reader's first complaints are above)",
             log.display(),
             st.malformed
         );

@@ -17,7 +17,8 @@ use crate::profile::Profile;
 
 /// Export one vehicle's CAN logs to a Parquet data lake.
 ///
-/// Reads each LOG in turn (candump -L, Vector ASC, BLF, ASAM MDF 4 or PEAK TRC) and writes, under LAKE:
+/// Reads each LOG in turn (candump -L, Vector ASC, BLF, ASAM MDF 4 or PEAK TRC) and writes,
+/// under LAKE:
 ///   <VEHICLE>/<message>/<yyyy>/<mm>/<dd>/*.parquet
 ///       every frame the profile's DBC defines, one file set per CAN message: a column t
 ///       (timestamp, µs, UTC) and one column per signal (physical value, Float64; value-table

@@ -15,11 +15,11 @@ use crate::profile::Profile;
 
 /// The manual part of `shimmy identify --help`.
 const MANUAL: &str = "\
-Reads the first --seconds of each LOG (candump -L, Vector ASC, BLF, MF4 or PEAK TRC) and compares what it
-sees with every vehicle profile (the folders <name>/profile.toml found in $SHIMMY_PROFILES,
-./config/vehicles, /etc/shimmyd/vehicles and the source tree's config/vehicles, first of a
-name wins): for each message a profile expects (the messages its mapping reads, and those of
-its bus.toml, when it has one),
+Reads the first --seconds of each LOG (candump -L, Vector ASC, BLF, MF4 or PEAK TRC) and
+compares what it sees with every vehicle profile (the folders <name>/profile.toml found in
+$SHIMMY_PROFILES, ./config/vehicles, /etc/shimmyd/vehicles and the source tree's
+config/vehicles, first of a name wins): for each message a profile expects (the messages its
+mapping reads, and those of its bus.toml, when it has one),
   present        frames with its ID on one bus channel
   length         the share of frames whose payload has the DBC's length
   period         the measured send period against bus.toml's (or the DBC's GenMsgCycleTime)

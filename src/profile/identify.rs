@@ -615,7 +615,9 @@ pub fn evaluate(fp: &Fingerprint) -> Identification {
                 .iter()
                 .find(|p| p.messages.iter().any(|m| m.frames > 0));
             let summary = if fp.frames == 0 {
-                "unknown: no frames read (is it a candump -L, Vector ASC, BLF, MF4 or PEAK TRC log?)".into()
+                "unknown: no frames read (is it a candump -L, Vector ASC, BLF, MF4 or PEAK TRC \
+                 log?)"
+                    .into()
             } else {
                 match closest {
                     Some(c) => format!(

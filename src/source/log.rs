@@ -4,8 +4,9 @@
 //! it needs a seekable file, so not gzip-compressed); a `LOGG` signature is Vector BLF; a Vector
 //! ASC header (`date`, `base`, `Begin Triggerblock`)
 //! is ASC; a `;$FILEVERSION` line is a PEAK TRC trace; otherwise `.blf` / `.asc` / `.trc`
-//! extensions decide, and everything else is read as can-utils `candump -L`. A gzip-compressed file (`.log.gz`, `.asc.gz`) is decompressed on
-//! the fly and the same rules applied to its contents.
+//! extensions decide, and everything else is read as can-utils `candump -L`. A
+//! gzip-compressed file (`.log.gz`, `.asc.gz`) is decompressed on the fly and the same rules
+//! applied to its contents.
 //!
 //! Policy lives here, not in [`crate::wire`]: a malformed line or record is counted in
 //! [`SourceStats::malformed`], and the first [`DEFAULT_MAX_REPORTS`] are reported through

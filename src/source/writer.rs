@@ -33,19 +33,33 @@ pub enum OutFormat {
 }
 
 impl OutFormat {
-    /// The format a file name asks for (by extension, case-insensitive).
-    pub fn from_path(p: &Path) -> OutFormat {
-        match p
-            .extension()
-            .and_then(|e| e.to_str())
-            .map(|e| e.to_ascii_lowercase())
-            .as_deref()
-        {
-            Some("mf4") => OutFormat::Mf4,
-            Some("asc") => OutFormat::Asc,
-            Some("blf") => OutFormat::Blf,
-            _ => OutFormat::Candump,
-        }
+    /// The format a file name asks for (by extension, case-insensitive; anything else is
+    /// candump -L). `.trc` is refused: PEAK TRC is a format the readers read, not one written
+    /// here, and candump text under that name would mislead.
+    pub fn from_path(p: &Path) -> io::Result<OutFormat> {
+        Ok(
+            match p
+                .extension()
+                .and_then(|e| e.to_str())
+                .map(|e| e.to_ascii_lowercase())
+                .as_deref()
+            {
+                Some("mf4") => OutFormat::Mf4,
+                Some("asc") => OutFormat::Asc,
+                Some("blf") => OutFormat::Blf,
+                Some("trc") => {
+                    return Err(io::Error::new(
+                        io::ErrorKind::InvalidInput,
+                        format!(
+                            "{}: PEAK TRC is read, not written; use the extension .log \
+                             (candump -L), .asc, .blf or .mf4",
+                            p.display()
+                        ),
+                    ))
+                }
+                _ => OutFormat::Candump,
+            },
+        )
     }
 }
 
@@ -155,7 +169,7 @@ pub struct LogWriter {
 impl LogWriter {
     /// Create (truncate) `path`, in the format its extension names; MF4 with `mf4` options.
     pub fn create(path: &Path, mf4: Mf4WriterOptions) -> io::Result<LogWriter> {
-        let format = OutFormat::from_path(path);
+        let format = OutFormat::from_path(path)?;
         let file = || {
             File::create(path).map_err(|e| {
                 io::Error::new(e.kind(), format!("cannot create {}: {e}", path.display()))
