@@ -78,20 +78,28 @@ pub enum SignalArg {
     Torque,
 }
 
-/// One vehicle's line in the events cache.
-#[derive(Serialize, Deserialize)]
-struct CachedVehicle {
+/// One vehicle's events at new joints as [`FitSetup::read_vehicle`] reads them: a line of the
+/// events cache, and what the fleet job's executors hand the fit.
+#[derive(Clone, Serialize, Deserialize)]
+pub struct VehicleEvents {
     /// The vehicle's files with their sizes and modification times: read again when they change.
-    key: String,
-    vehicle: String,
+    pub key: String,
+    pub vehicle: String,
     #[serde(default)]
     evidence: Vec<Evidence>,
     /// Why the vehicle gave no event, when it did not.
     #[serde(default)]
-    skipped: Option<String>,
+    pub skipped: Option<String>,
     /// The steering sensors' noise measured at its stops, per signal.
     #[serde(default)]
     noise: Vec<NoiseSeen>,
+}
+
+impl VehicleEvents {
+    /// Usable braking events read (any signal).
+    pub fn events(&self) -> usize {
+        self.evidence.len()
+    }
 }
 
 /// One signal's noise at a vehicle's stops (src/observer/noise_floor.rs) against the table's.
@@ -104,7 +112,7 @@ struct NoiseSeen {
 
 /// The median over the vehicles of a signal's measured / assumed standstill noise, and over how
 /// many vehicles; `None` where none measured it.
-fn noise_ratio(vehicles: &[CachedVehicle], signal: SteerSignal) -> Option<(f64, f64, usize)> {
+fn noise_ratio(vehicles: &[VehicleEvents], signal: SteerSignal) -> Option<(f64, f64, usize)> {
     let mut r: Vec<(f64, f64)> = vehicles
         .iter()
         .flat_map(|v| v.noise.iter())
@@ -120,7 +128,7 @@ fn noise_ratio(vehicles: &[CachedVehicle], signal: SteerSignal) -> Option<(f64, 
 }
 
 /// The vehicle's logs: the file, or the files of the directory in name order.
-fn vehicle_logs(v: &Path) -> anyhow::Result<Vec<PathBuf>> {
+pub fn vehicle_logs(v: &Path) -> anyhow::Result<Vec<PathBuf>> {
     if v.is_dir() {
         let mut logs: Vec<PathBuf> = std::fs::read_dir(v)
             .with_context(|| format!("cannot read vehicle directory {}", v.display()))?
@@ -142,7 +150,8 @@ fn vehicle_logs(v: &Path) -> anyhow::Result<Vec<PathBuf>> {
     }
 }
 
-fn cache_key(logs: &[PathBuf]) -> String {
+/// The logs' identity for the cache: paths, sizes and modification times.
+pub fn cache_key(logs: &[PathBuf]) -> String {
     logs.iter()
         .map(|p| {
             let (len, mtime) = std::fs::metadata(p)
@@ -162,18 +171,18 @@ fn cache_key(logs: &[PathBuf]) -> String {
 }
 
 /// The cached vehicles, by key (lines that do not parse, e.g. one cut by a crash, are dropped).
-fn read_cache(path: &Path) -> std::collections::HashMap<String, CachedVehicle> {
+fn read_cache(path: &Path) -> std::collections::HashMap<String, VehicleEvents> {
     let Ok(text) = std::fs::read_to_string(path) else {
         return Default::default();
     };
     text.lines()
-        .filter_map(|l| serde_json::from_str::<CachedVehicle>(l).ok())
+        .filter_map(|l| serde_json::from_str::<VehicleEvents>(l).ok())
         .map(|c| (c.key.clone(), c))
         .collect()
 }
 
 /// A signal's events of each vehicle, as the fit takes them.
-fn fit_events(vehicles: &[CachedVehicle], signal: SteerSignal) -> Vec<Vec<FitEvent>> {
+fn fit_events(vehicles: &[VehicleEvents], signal: SteerSignal) -> Vec<Vec<FitEvent>> {
     vehicles
         .iter()
         .map(|v| {
@@ -201,53 +210,239 @@ fn fit_events(vehicles: &[CachedVehicle], signal: SteerSignal) -> Vec<Vec<FitEve
         .collect()
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
-    if !(args.clearance_mm.is_finite() && args.clearance_mm > 0.0) {
-        bail!(
-            "--clearance-mm must be a clearance above 0 mm, not {}",
-            args.clearance_mm
-        );
-    }
-    let cfg = match &args.config {
-        Some(p) => ObserverConfig::load(p)?,
-        None => ObserverConfig::default(),
-    };
-    let profile = Profile::load(&args.profile)?;
-    // The tables as calibrated: a correction the profile already names is not applied while
-    // a new one is fitted.
-    let strip = |t: Option<ResponseTable>| {
-        t.map(|mut t| {
-            t.correction = None;
-            t
+/// What a fit runs with: the profile, the observer settings, and the tables it corrects (as
+/// calibrated: a correction the profile already names is not applied while a new one is fitted;
+/// the chassis variants stay out). The same for the CLI, the Python package and the fleet job.
+pub struct FitSetup {
+    profile: Profile,
+    cfg: ObserverConfig,
+    angle: Option<ResponseTable>,
+    torque: Option<ResponseTable>,
+    signal: Option<SignalArg>,
+    clearance_mm: f64,
+}
+
+/// A fit's result: the correction file's text and what it says.
+#[derive(Serialize)]
+pub struct FitOutcome {
+    /// The correction, as written to the file.
+    pub correction: CorrectionFile,
+    /// The file's text (a comment header, then TOML).
+    #[serde(skip)]
+    pub text: String,
+    /// One line per fitted signal: gains, ranges, spread, what the fleet said.
+    pub summary: Vec<String>,
+    /// Signals not fitted, each with the reason.
+    pub not_fitted: Vec<String>,
+    pub vehicles: usize,
+    pub skipped: usize,
+}
+
+impl FitSetup {
+    /// Loads the profile, its tables and the settings; refuses a clearance that is no clearance
+    /// and a profile without a table of the signal asked for.
+    pub fn load(
+        profile: &str,
+        config: Option<&Path>,
+        clearance_mm: f64,
+        signal: Option<SignalArg>,
+    ) -> anyhow::Result<FitSetup> {
+        if !(clearance_mm.is_finite() && clearance_mm > 0.0) {
+            bail!("--clearance-mm must be a clearance above 0 mm, not {clearance_mm}");
+        }
+        let cfg = match config {
+            Some(p) => ObserverConfig::load(p)?,
+            None => ObserverConfig::default(),
+        };
+        let profile = Profile::load(profile)?;
+        let strip = |t: Option<ResponseTable>| {
+            t.map(|mut t| {
+                t.correction = None;
+                t
+            })
+        };
+        let want = |s: SignalArg| signal.is_none_or(|a| a == s);
+        let angle = strip(profile.load_table()?);
+        let torque = strip(profile.load_torque_table()?);
+        if !(angle.is_some() && want(SignalArg::Angle)
+            || torque.is_some() && want(SignalArg::Torque))
+        {
+            bail!(
+                "profile {} has no response table {}to correct",
+                profile.name,
+                match signal {
+                    Some(SignalArg::Angle) => "of the steering angle ",
+                    Some(SignalArg::Torque) => "of the steering torque (or its mapping maps none) ",
+                    None => "",
+                }
+            );
+        }
+        Ok(FitSetup {
+            profile,
+            cfg,
+            angle,
+            torque,
+            signal,
+            clearance_mm,
         })
-    };
-    let angle = strip(profile.load_table()?);
-    let torque = strip(profile.load_torque_table()?);
-    let want = |s: SignalArg| args.signal.is_none_or(|a| a == s);
-    let mut targets: Vec<(SteerSignal, &ResponseTable)> = Vec::new();
-    if let Some(t) = angle.as_ref().filter(|_| want(SignalArg::Angle)) {
-        targets.push((SteerSignal::AngleDeg, t));
     }
-    if let Some(t) = torque.as_ref().filter(|_| want(SignalArg::Torque)) {
-        targets.push((SteerSignal::TorqueNm, t));
+
+    /// Reads one vehicle's logs (in order) through the same pipeline as `shimmy estimate
+    /// --baseline`. Never fails: a vehicle without a usable event comes back skipped, with why.
+    pub fn read_vehicle(&self, vehicle: &str, logs: Vec<PathBuf>) -> VehicleEvents {
+        let key = cache_key(&logs);
+        // Both tables feed the pipeline whichever signal is fitted: the events are the same.
+        let tables = crate::pipeline::Tables {
+            angle: self.angle.clone(),
+            torque: self.torque.clone(),
+            torque_alternatives: Vec::new(),
+        };
+        let b = BaselineLogs {
+            logs,
+            clearance_mm: self.clearance_mm,
+        };
+        let (evidence, noise, skipped) = match baseline_and_noise_of(
+            &self.profile.mapping_path,
+            Some(&self.profile.dbc_path),
+            tables,
+            self.cfg.clone(),
+            &b,
+            TOOL,
+        ) {
+            Ok((b, noise)) => (
+                b.evidence,
+                noise
+                    .iter()
+                    .map(|n| NoiseSeen {
+                        signal: n.signal,
+                        measured_rms: n.measured_rms,
+                        assumed_rms: n.assumed_rms,
+                    })
+                    .collect(),
+                None,
+            ),
+            Err(e) => (Vec::new(), Vec::new(), Some(format!("{e:#}"))),
+        };
+        VehicleEvents {
+            key,
+            vehicle: vehicle.to_string(),
+            evidence,
+            skipped,
+            noise,
+        }
     }
-    if targets.is_empty() {
-        bail!(
-            "profile {} has no response table {}to correct",
-            profile.name,
-            match args.signal {
-                Some(SignalArg::Angle) => "of the steering angle ",
-                Some(SignalArg::Torque) => "of the steering torque (or its mapping maps none) ",
-                None => "",
+
+    /// The fit over the vehicles, per signal (in the vehicles' order: the same vehicles in the
+    /// same order give the same bytes). Progress goes to stderr.
+    pub fn fit(&self, vehicles: &[VehicleEvents]) -> anyhow::Result<FitOutcome> {
+        let n = vehicles.len();
+        let skipped = vehicles.iter().filter(|v| v.skipped.is_some()).count();
+        let want = |s: SignalArg| self.signal.is_none_or(|a| a == s);
+        let mut targets: Vec<(SteerSignal, &ResponseTable)> = Vec::new();
+        if let Some(t) = self.angle.as_ref().filter(|_| want(SignalArg::Angle)) {
+            targets.push((SteerSignal::AngleDeg, t));
+        }
+        if let Some(t) = self.torque.as_ref().filter(|_| want(SignalArg::Torque)) {
+            targets.push((SteerSignal::TorqueNm, t));
+        }
+        let mut file = CorrectionFile::default();
+        let mut lines = Vec::new();
+        let mut not_fitted = Vec::new();
+        let mut refused: Vec<&str> = Vec::new();
+        for (signal, table) in targets {
+            let name = signal_name(signal);
+            let events = fit_events(vehicles, signal);
+            let with = events.iter().filter(|e| !e.is_empty()).count();
+            if with < 2 {
+                not_fitted.push(format!(
+                    "{name}: {with} vehicle(s) with usable events, at least 2 needed: not fitted"
+                ));
+                continue;
             }
+            // A sensor noisier than its table's reads, at new joints, as a gain; the gain would
+            // then take the rattle of worn joints for noise (docs/ACCURACY.md measures it).
+            if let Some((ratio, measured, n_noise)) = noise_ratio(vehicles, signal) {
+                let limit = self.cfg.features.noise_floor_ratio;
+                if limit > 0.0 && ratio > limit {
+                    not_fitted.push(format!(
+                        "{name}: not fitted: the sensor measures {measured:.4} {} RMS at \
+                         standstill, {ratio:.2}× what its table assumes (median over {n_noise} \
+                         vehicles; [features] noise_floor_ratio = {limit}). A noisier sensor is \
+                         not a gain: rebuild the table for it (`shimmy calibrate \
+                         --sensor-noise-deg {measured:.4}`, with `--signal torque` for the \
+                         torque) and fit again",
+                        signal.unit()
+                    ));
+                    refused.push(name);
+                    continue;
+                }
+            }
+            let ecfg = match signal {
+                SteerSignal::AngleDeg => self.cfg.estimator.clone(),
+                SteerSignal::TorqueNm => self.cfg.torque_estimator(),
+            };
+            eprintln!(
+                "{TOOL}: {name}: fitting on {with} vehicles, {} events",
+                events.iter().map(Vec::len).sum::<usize>()
+            );
+            let c = correction::fit(table, &ecfg, &events, self.clearance_mm, |k| {
+                if k % 50 == 0 {
+                    eprintln!("{TOOL}: {name}: {k} likelihood evaluations");
+                }
+            })
+            .with_context(|| format!("fitting the {name} correction"))?;
+            lines.push(summary(signal, &c));
+            file.set(signal, c);
+        }
+        if file.angle_deg.is_none() && file.torque_nm.is_none() {
+            if !refused.is_empty() {
+                bail!(
+                    "no correction fitted: the {} sensor is noisier than its table assumes: {}",
+                    refused.join(" and "),
+                    not_fitted.join("; ")
+                );
+            }
+            bail!(
+                "no correction fitted ({skipped} of {n} vehicle(s) gave no usable braking \
+                 event): {}",
+                not_fitted.join("; ")
+            );
+        }
+        let header = format!(
+            "# A car model's correction to profile {}'s response tables, fitted by `shimmy fleet-fit` on\n\
+             # {n} vehicle(s) at {} mm ({skipped} skipped for lack of usable events). Name this file in\n\
+             # the profile's profile.toml as `correction = \"<file>\"` (src/observer/correction.rs).\n",
+            self.profile.name, self.clearance_mm
         );
+        let body = toml::to_string_pretty(&file).context("serialising the correction")?;
+        Ok(FitOutcome {
+            correction: file,
+            text: format!("{header}{body}"),
+            summary: lines,
+            not_fitted,
+            vehicles: n,
+            skipped,
+        })
     }
-    // The correction is fitted against the nominal tables: the chassis variants stay out.
-    let tables = crate::pipeline::Tables {
-        angle: angle.clone(),
-        torque: torque.clone(),
-        torque_alternatives: Vec::new(),
-    };
+}
+
+/// Writes `text` to `path` through a temporary file beside it, so that a crash leaves the old
+/// file or the new one, never half of one.
+pub fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = PathBuf::from(tmp);
+    std::fs::write(&tmp, text).with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let setup = FitSetup::load(
+        &args.profile,
+        args.config.as_deref(),
+        args.clearance_mm,
+        args.signal,
+    )?;
     let cache_path = args.events_cache.clone().unwrap_or_else(|| {
         let mut p = args.out.clone().into_os_string();
         p.push(".events.jsonl");
@@ -261,7 +456,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .with_context(|| format!("cannot open the events cache {}", cache_path.display()))?;
 
     let n = args.vehicles.len();
-    let mut vehicles: Vec<CachedVehicle> = Vec::with_capacity(n);
+    let mut vehicles: Vec<VehicleEvents> = Vec::with_capacity(n);
     let mut resumed = 0usize;
     for (i, v) in args.vehicles.iter().enumerate() {
         let logs = vehicle_logs(v)?;
@@ -272,39 +467,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 c
             }
             None => {
-                let b = BaselineLogs {
-                    logs,
-                    clearance_mm: args.clearance_mm,
-                };
-                let (evidence, noise, skipped) = match baseline_and_noise_of(
-                    &profile.mapping_path,
-                    Some(&profile.dbc_path),
-                    tables.clone(),
-                    cfg.clone(),
-                    &b,
-                    TOOL,
-                ) {
-                    Ok((b, noise)) => (
-                        b.evidence,
-                        noise
-                            .iter()
-                            .map(|n| NoiseSeen {
-                                signal: n.signal,
-                                measured_rms: n.measured_rms,
-                                assumed_rms: n.assumed_rms,
-                            })
-                            .collect(),
-                        None,
-                    ),
-                    Err(e) => (Vec::new(), Vec::new(), Some(format!("{e:#}"))),
-                };
-                let c = CachedVehicle {
-                    key,
-                    vehicle: v.display().to_string(),
-                    evidence,
-                    skipped,
-                    noise,
-                };
+                let c = setup.read_vehicle(&v.display().to_string(), logs);
                 let line = serde_json::to_string(&c).context("serialising the events cache")?;
                 writeln!(cache, "{line}").with_context(|| {
                     format!("writing the events cache {}", cache_path.display())
@@ -327,93 +490,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         vehicles.push(entry);
     }
-    let skipped = vehicles.iter().filter(|v| v.skipped.is_some()).count();
     if resumed > 0 {
         eprintln!(
             "{TOOL}: {resumed} vehicle(s) read from the events cache {}",
             cache_path.display()
         );
     }
-
-    let mut file = CorrectionFile::default();
-    let mut lines = Vec::new();
-    let mut refused: Vec<&str> = Vec::new();
-    for (signal, table) in targets {
-        let events = fit_events(&vehicles, signal);
-        let with = events.iter().filter(|e| !e.is_empty()).count();
-        if with < 2 {
-            eprintln!(
-                "{TOOL}: {}: {with} vehicle(s) with usable events, at least 2 needed: not fitted",
-                signal_name(signal)
-            );
-            continue;
-        }
-        // A sensor noisier than its table's reads, at new joints, as a gain; the gain would
-        // then take the rattle of worn joints for noise (docs/ACCURACY.md measures it).
-        if let Some((ratio, measured, n_noise)) = noise_ratio(&vehicles, signal) {
-            let limit = cfg.features.noise_floor_ratio;
-            if limit > 0.0 && ratio > limit {
-                eprintln!(
-                    "{TOOL}: {}: not fitted: the sensor measures {measured:.4} {} RMS at \
-                     standstill, {ratio:.2}× what its table assumes (median over {n_noise} \
-                     vehicles; [features] noise_floor_ratio = {limit}). A noisier sensor is \
-                     not a gain: rebuild the table for it (`shimmy calibrate --sensor-noise-deg \
-                     {measured:.4}`, with `--signal torque` for the torque) and fit again",
-                    signal_name(signal),
-                    signal.unit()
-                );
-                refused.push(signal_name(signal));
-                continue;
-            }
-        }
-        let ecfg = match signal {
-            SteerSignal::AngleDeg => cfg.estimator.clone(),
-            SteerSignal::TorqueNm => cfg.torque_estimator(),
-        };
-        eprintln!(
-            "{TOOL}: {}: fitting on {with} vehicles, {} events",
-            signal_name(signal),
-            events.iter().map(Vec::len).sum::<usize>()
-        );
-        let c = correction::fit(table, &ecfg, &events, args.clearance_mm, |k| {
-            if k % 50 == 0 {
-                eprintln!(
-                    "{TOOL}: {}: {k} likelihood evaluations",
-                    signal_name(signal)
-                );
-            }
-        })
-        .with_context(|| format!("fitting the {} correction", signal_name(signal)))?;
-        lines.push(summary(signal, &c));
-        file.set(signal, c);
+    let out = setup.fit(&vehicles)?;
+    for l in &out.not_fitted {
+        eprintln!("{TOOL}: {l}");
     }
-    if file.angle_deg.is_none() && file.torque_nm.is_none() {
-        if !refused.is_empty() {
-            bail!(
-                "no correction fitted: the {} sensor is noisier than its table assumes (see \
-                 above)",
-                refused.join(" and ")
-            );
-        }
-        bail!(
-            "no correction fitted: {skipped} of {n} vehicle(s) gave no usable braking event \
-             (see the lines above)"
-        );
-    }
-    let header = format!(
-        "# A car model's correction to profile {}'s response tables, fitted by `shimmy fleet-fit` on\n\
-         # {n} vehicle(s) at {} mm ({skipped} skipped for lack of usable events). Name this file in\n\
-         # the profile's profile.toml as `correction = \"<file>\"` (src/observer/correction.rs).\n",
-        profile.name, args.clearance_mm
-    );
-    let body = toml::to_string_pretty(&file).context("serialising the correction")?;
-    std::fs::write(&args.out, format!("{header}{body}"))
-        .with_context(|| format!("cannot write {}", args.out.display()))?;
-    for l in lines {
+    write_atomic(&args.out, &out.text)?;
+    for l in &out.summary {
         println!("{l}");
     }
     println!(
-        "{n} vehicle(s), {skipped} skipped; written to {}",
+        "{n} vehicle(s), {} skipped; written to {}",
+        out.skipped,
         args.out.display()
     );
     Ok(())
