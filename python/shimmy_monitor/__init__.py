@@ -9,6 +9,7 @@ code as the ``shimmy`` command it mirrors, so results are those of the CLI:
 ``estimate(logs, profile)``                ``shimmy estimate --profile P --format json LOG...``
 ``export(logs, profile, vehicle, out)``    ``shimmy export --profile P --vehicle V --out OUT LOG...``
 ``events(logs, profile)``                  the ``events`` table ``shimmy export`` writes
+``fleet_fit(vehicles, profile, out)``      ``shimmy fleet-fit --profile P -o OUT VEHICLE...``
 =========================================  ==============================================
 
 Vehicle profiles (``profile=``) are names under ``config/vehicles`` of the source tree the wheel
@@ -23,10 +24,13 @@ Errors (a missing or unreadable log, an unknown profile, a DBC that does not loa
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import sys
 import tempfile
-from typing import Iterable, List, Optional, Sequence, Union
+from collections.abc import Mapping
+from typing import Iterable, List, Optional, Sequence, Tuple, Union
 
 from . import _native
 from ._native import ShimmyError
@@ -37,6 +41,9 @@ __all__ = [
     "estimate",
     "events",
     "export",
+    "fleet_fit",
+    "fleet_fit_events",
+    "fleet_vehicle_events",
     "model_version",
 ]
 
@@ -217,6 +224,135 @@ def events(
             t = t.append_column("vehicle", pa.array([vehicle] * t.num_rows, pa.string()))
             parts.append(t.append_column("date", pa.array([date] * t.num_rows, pa.string())))
         return pa.concat_tables(parts)
+
+
+def _vehicle_logs(v: PathLike) -> List[str]:
+    """A vehicle given as a path: the log file, or the files of the folder in name order (as
+    ``shimmy fleet-fit`` reads it)."""
+    p = os.fspath(v)
+    if os.path.isdir(p):
+        logs = sorted(
+            os.path.join(p, n) for n in os.listdir(p) if os.path.isfile(os.path.join(p, n))
+        )
+        if not logs:
+            raise ShimmyError(f"vehicle directory {p} holds no file")
+        return logs
+    if os.path.isfile(p):
+        return [p]
+    raise ShimmyError(f"vehicle {p} is neither a log file nor a directory")
+
+
+def _fit_cache_file(cache: str, vehicle: str, logs: Sequence[str]) -> str:
+    """The events cache's file of one vehicle: named by its ID and logs, so a vehicle whose logs
+    change gets read again (the file also keeps their sizes and times)."""
+    h = hashlib.sha256("\0".join([vehicle, *logs]).encode()).hexdigest()[:16]
+    return os.path.join(cache, f"{h}.json")
+
+
+def fleet_vehicle_events(
+    vehicle: str,
+    logs: Union[PathLike, Sequence[PathLike]],
+    profile: str,
+    config: Optional[PathLike] = None,
+    clearance_mm: float = 0.03,
+    signal: Optional[str] = None,
+    events_cache: Optional[PathLike] = None,
+) -> str:
+    """One vehicle's braking events at new joints, read as :func:`fleet_fit` reads them: an
+    opaque JSON string for :func:`fleet_fit_events`. The fleet job calls it on its executors.
+
+    :param events_cache: a folder where the result is kept (one file per vehicle) and read back
+        while the vehicle's logs are unchanged, so a stopped job resumes.
+    """
+    logs = _paths(logs)
+    cache = None
+    if events_cache is not None:
+        cache = _fit_cache_file(os.fspath(events_cache), vehicle, logs)
+    return _native.fleet_fit_vehicle_json(
+        vehicle,
+        logs,
+        profile,
+        None if config is None else os.fspath(config),
+        float(clearance_mm),
+        signal,
+        cache,
+    )
+
+
+def fleet_fit_events(
+    vehicles: Sequence[str],
+    profile: str,
+    out: PathLike,
+    config: Optional[PathLike] = None,
+    clearance_mm: float = 0.03,
+    signal: Optional[str] = None,
+) -> dict:
+    """The fit of :func:`fleet_fit` over vehicles read by :func:`fleet_vehicle_events` (in the
+    order given); writes ``out`` and returns what :func:`fleet_fit` returns."""
+    r = json.loads(
+        _native.fleet_fit_json(
+            profile,
+            list(vehicles),
+            os.fspath(out),
+            None if config is None else os.fspath(config),
+            float(clearance_mm),
+            signal,
+        )
+    )
+    r["out"] = os.fspath(out)
+    return r
+
+
+def fleet_fit(
+    vehicles: Union[Mapping[str, Union[PathLike, Sequence[PathLike]]], Iterable[PathLike]],
+    profile: str,
+    out: PathLike,
+    clearance_mm: float = 0.03,
+    config: Optional[PathLike] = None,
+    signal: Optional[str] = None,
+    events_cache: Optional[PathLike] = None,
+) -> dict:
+    """Fit a car model's correction to its profile's response tables from many of its vehicles
+    driven at new joints, as ``shimmy fleet-fit`` does (``shimmy fleet-fit --help`` is the
+    manual; docs/ACCURACY.md, "The car model's correction", what it takes out and what not).
+
+    Each vehicle's logs go through the same pipeline as :func:`estimate` with a baseline; the
+    fit finds, per steering signal the profile has a table of, a gain per feature (braking RMS,
+    peak, cruise RMS), its standard error and the vehicles' spread about it. Name the file
+    written in the profile's profile.toml as ``correction = "<file>"``: every estimate from the
+    profile (CLI, shimmyd, this package, the fleet job) then applies it.
+
+    :param vehicles: ``{vehicle_id: logs}`` (a log or a list of them, in time order), or paths,
+        one per vehicle: a log file, or a folder whose files are the vehicle's logs (name order).
+        The fit takes them in this order; the same vehicles in the same order write the same
+        bytes as the CLI.
+    :param out: the correction file to write (TOML).
+    :param clearance_mm: the joints' clearance during the drives (new joints: 0.02-0.06 mm).
+    :param signal: ``"angle"`` or ``"torque"`` to fit only that signal's table.
+    :param events_cache: a folder keeping each vehicle's events as it is read (resume).
+    :returns: ``correction`` (the file's content as a dict: ``angle_deg``/``torque_nm`` with
+        ``gain``, ``gain_se_ln``, ``spread_ln``, ``vehicles``, ``events``, ...), ``summary`` (a
+        line per signal fitted), ``not_fitted`` (signals left out, with why), ``vehicles``,
+        ``skipped`` (vehicles without a usable braking event) and ``out``.
+    :raises ShimmyError: unknown profile, a missing log, or nothing could be fitted (too few
+        vehicles with events, a sensor noisier than its table: the message says which).
+    """
+    if isinstance(vehicles, Mapping):
+        items: List[Tuple[str, List[str]]] = [(str(k), _paths(v)) for k, v in vehicles.items()]
+    else:
+        if isinstance(vehicles, (str, bytes, os.PathLike)):
+            vehicles = [vehicles]
+        items = [(os.fspath(v), _vehicle_logs(v)) for v in vehicles]
+    if not items:
+        raise ShimmyError("no vehicles given")
+    read = []
+    for i, (v, logs) in enumerate(items):
+        e = fleet_vehicle_events(v, logs, profile, config, clearance_mm, signal, events_cache)
+        d = json.loads(e)
+        what = f"skipped: {d['skipped']}" if d.get("skipped") else f"{len(d['evidence'])} event(s)"
+        print(f"fleet_fit: vehicle {i + 1}/{len(items)} {v}: {what}", file=sys.stderr)
+        read.append(e)
+    return fleet_fit_events(read, profile, out, config, clearance_mm, signal)
 
 
 def _empty_events():

@@ -36,6 +36,11 @@ From the command line (``spark-submit``; docs/FLEET.md, "Running on a cluster"):
 
     spark-submit --master yarn shimmy_monitor/spark.py --manifest fleet.csv --lake /data/lake
 
+The same job fits a car model's correction to its profile's tables (:func:`run_fleet_fit`,
+``shimmy fleet-fit`` in parallel) from a manifest of its vehicles' drives at new joints::
+
+    spark-submit shimmy_monitor/spark.py --manifest new_joints.csv --fit-correction corr.toml
+
 What this module is not: an estimator or a Parquet writer of its own (both are the Rust
 library's, through :mod:`shimmy_monitor`).
 """
@@ -307,6 +312,76 @@ def run_fleet(
     return summary_df, errors_df
 
 
+def run_fleet_fit(
+    spark,
+    manifest: List[Dict[str, str]],
+    out: str,
+    config: Optional[str] = None,
+    clearance_mm: float = 0.03,
+    signal: Optional[str] = None,
+    partitions: Optional[int] = None,
+) -> Dict[str, object]:
+    """The car model's correction from a fleet at new joints, on Spark: what ``shimmy
+    fleet-fit`` does, with the vehicles read in parallel.
+
+    Each vehicle's logs (the manifest's rows, grouped by vehicle as :func:`run_fleet` groups
+    them) are read on an executor by :func:`shimmy_monitor.fleet_vehicle_events`, kept in
+    ``<out>.events/`` (one file per vehicle, so a stopped job resumes where it was), and the
+    fit runs on the driver over the vehicles in the order of their IDs. The file written is
+    byte for byte what ``shimmy fleet-fit`` writes given the same vehicles in that order.
+
+    :param manifest: the vehicles' drives at new joints, all of one profile.
+    :param out: the correction file (TOML), on a path the driver can write; ``<out>.events/``
+        must be writable by every executor.
+    :returns: what :func:`shimmy_monitor.fleet_fit` returns.
+    :raises ValueError: the manifest is empty or names several profiles.
+    :raises ShimmyError: nothing could be fitted (the message says why).
+    """
+    import pandas as pd
+
+    profiles = sorted({r["profile"] for r in manifest})
+    if len(profiles) != 1:
+        raise ValueError(
+            "a correction is fitted for one car model: the manifest names "
+            + (", ".join(profiles) if profiles else "no vehicle")
+        )
+    profile = profiles[0]
+    out = os.path.abspath(out)
+    cache = out + ".events"
+    if partitions is None:
+        partitions = spark.sparkContext.defaultParallelism
+    spark.conf.set("spark.sql.shuffle.partitions", str(partitions))
+    df = spark.createDataFrame(
+        [(r["vehicle"], r["log"], int(r["seq"])) for r in manifest],
+        "vehicle string, log string, seq long",
+    )
+
+    def per_vehicle(pdf: "pd.DataFrame") -> "pd.DataFrame":
+        vehicle = str(pdf["vehicle"].iloc[0])
+        logs = [r["log"] for r in sorted(pdf.to_dict("records"), key=lambda r: int(r["seq"]))]
+        try:
+            ev = sm.fleet_vehicle_events(
+                vehicle, logs, profile, config, clearance_mm, signal, events_cache=cache
+            )
+        except sm.ShimmyError as e:
+            # A vehicle that cannot be read is skipped with its reason, as the CLI skips it.
+            ev = json.dumps({"key": "", "vehicle": vehicle, "skipped": str(e)})
+        return pd.DataFrame([(vehicle, ev)], columns=["vehicle", "events_json"])
+
+    rows = (
+        df.repartition(partitions, "vehicle")
+        .groupBy("vehicle")
+        .applyInPandas(per_vehicle, schema="vehicle string, events_json string")
+        .collect()
+    )
+    read = [r["events_json"] for r in sorted(rows, key=lambda r: r["vehicle"])]
+    for r in sorted(rows, key=lambda r: r["vehicle"]):
+        d = json.loads(r["events_json"])
+        if d.get("skipped"):
+            print(f"fleet-fit: vehicle {r['vehicle']}: skipped: {d['skipped']}", file=sys.stderr)
+    return sm.fleet_fit_events(read, profile, out, config, clearance_mm, signal)
+
+
 def _logs_of(manifest: List[Dict[str, str]], vehicle: str) -> List[str]:
     return [r["log"] for r in sorted(manifest, key=lambda r: int(r["seq"])) if r["vehicle"] == vehicle]
 
@@ -336,13 +411,29 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     src.add_argument("--manifest", help="CSV (vehicle,profile,log) or JSON lines")
     src.add_argument("--glob", help="logs, the vehicle named by each log's folder")
     ap.add_argument("--profile", help="the profile of every log (with --glob)")
-    ap.add_argument("--lake", required=True, help="the lake's root (shared file system)")
+    ap.add_argument("--lake", help="the lake's root (shared file system)")
+    ap.add_argument(
+        "--fit-correction",
+        metavar="OUT",
+        help="instead of the lake: fit the car model's correction (shimmy fleet-fit) from the "
+        "manifest's vehicles, driven at new joints, into OUT (TOML)",
+    )
+    ap.add_argument(
+        "--clearance-mm", type=float, default=0.03,
+        help="with --fit-correction: the joints' clearance during the drives (mm)",
+    )
+    ap.add_argument(
+        "--signal", choices=["angle", "torque"],
+        help="with --fit-correction: fit only this signal's table",
+    )
     ap.add_argument("--config", help="the monitor's settings (TOML)")
     ap.add_argument("--partitions", type=int, help="shuffle partitions (default: parallelism)")
     ap.add_argument("--master", help="Spark master when not run by spark-submit (e.g. local[2])")
     a = ap.parse_args(argv)
     if a.glob and not a.profile:
         ap.error("--glob needs --profile")
+    if bool(a.lake) == bool(a.fit_correction):
+        ap.error("give --lake (the fleet job) or --fit-correction OUT (the correction fit)")
     manifest = read_manifest(a.manifest) if a.manifest else manifest_from_glob(a.glob, a.profile)
     from pyspark.sql import SparkSession
 
@@ -350,6 +441,21 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if a.master:
         b = b.master(a.master)
     spark = b.getOrCreate()
+    if a.fit_correction:
+        try:
+            r = run_fleet_fit(
+                spark, manifest, a.fit_correction, a.config, a.clearance_mm, a.signal,
+                a.partitions,
+            )
+        except (ValueError, sm.ShimmyError) as e:
+            print(f"shimmy_monitor.spark: error: {e}", file=sys.stderr)
+            spark.stop()
+            return 1
+        for line in r["not_fitted"] + r["summary"]:
+            print(line)
+        print(f"{r['vehicles']} vehicle(s), {r['skipped']} skipped; written to {r['out']}")
+        spark.stop()
+        return 0
     summary, errors = run_fleet(spark, manifest, a.lake, a.config, a.partitions)
     summary.select(
         "vehicle", "status", "events_used", "clearance_mm", "detectable", "alerts"

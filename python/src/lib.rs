@@ -23,6 +23,7 @@ use pyo3::create_exception;
 use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 
+use shimmy::cli::fleet_fit::{self, FitSetup, SignalArg, VehicleEvents};
 use shimmy::cli::{estimate, export, TextOrJson};
 use shimmy::dbc::{Database, DecodeError};
 use shimmy::source::log::LogReader;
@@ -258,10 +259,6 @@ impl StreamHandle {
     }
 }
 
-fn estimate_args(logs: Vec<PathBuf>, profile: String, config: Option<PathBuf>) -> estimate::Args {
-    estimate_args_with(logs, profile, config, Vec::new(), 0.03)
-}
-
 fn estimate_args_with(
     logs: Vec<PathBuf>,
     profile: String,
@@ -335,6 +332,96 @@ fn export_json(
     })
 }
 
+fn signal_arg(signal: Option<&str>) -> anyhow::Result<Option<SignalArg>> {
+    match signal {
+        None => Ok(None),
+        Some("angle") => Ok(Some(SignalArg::Angle)),
+        Some("torque") => Ok(Some(SignalArg::Torque)),
+        Some(other) => anyhow::bail!("signal must be \"angle\" or \"torque\", not {other:?}"),
+    }
+}
+
+/// `shimmy fleet-fit`'s reading of one vehicle's drives at new joints: its events as one JSON
+/// object (a line of the CLI's events cache). With `cache`, the object is kept in that file and
+/// read back while the logs are unchanged (sizes and modification times), so a fleet job that
+/// stopped resumes.
+#[pyfunction]
+#[pyo3(signature = (vehicle, logs, profile, config=None, clearance_mm=0.03, signal=None, cache=None))]
+#[allow(clippy::too_many_arguments)]
+fn fleet_fit_vehicle_json(
+    py: Python<'_>,
+    vehicle: String,
+    logs: Vec<PathBuf>,
+    profile: String,
+    config: Option<PathBuf>,
+    clearance_mm: f64,
+    signal: Option<String>,
+    cache: Option<PathBuf>,
+) -> PyResult<String> {
+    guarded(py, move || {
+        anyhow::ensure!(!logs.is_empty(), "vehicle {vehicle:?}: no logs given");
+        let key = fleet_fit::cache_key(&logs);
+        if let Some(c) = &cache {
+            if let Ok(text) = std::fs::read_to_string(c) {
+                if serde_json::from_str::<VehicleEvents>(&text).is_ok_and(|v| v.key == key) {
+                    return Ok(text);
+                }
+            }
+        }
+        let setup = FitSetup::load(
+            &profile,
+            config.as_deref(),
+            clearance_mm,
+            signal_arg(signal.as_deref())?,
+        )?;
+        let v = setup.read_vehicle(&vehicle, logs);
+        let text = serde_json::to_string(&v)?;
+        if let Some(c) = &cache {
+            if let Some(dir) = c.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("cannot create {}", dir.display()))?;
+            }
+            fleet_fit::write_atomic(c, &text)?;
+        }
+        Ok(text)
+    })
+}
+
+/// `shimmy fleet-fit`'s fit over vehicles read by `fleet_fit_vehicle_json` (in the order
+/// given): writes the correction file `out` and returns what the fit says as JSON.
+#[pyfunction]
+#[pyo3(signature = (profile, vehicles, out, config=None, clearance_mm=0.03, signal=None))]
+fn fleet_fit_json(
+    py: Python<'_>,
+    profile: String,
+    vehicles: Vec<String>,
+    out: PathBuf,
+    config: Option<PathBuf>,
+    clearance_mm: f64,
+    signal: Option<String>,
+) -> PyResult<String> {
+    guarded(py, move || {
+        let vehicles: Vec<VehicleEvents> = vehicles
+            .iter()
+            .enumerate()
+            .map(|(i, v)| {
+                serde_json::from_str(v)
+                    .with_context(|| format!("vehicle {i}: not a vehicle's events"))
+            })
+            .collect::<anyhow::Result<_>>()?;
+        anyhow::ensure!(!vehicles.is_empty(), "no vehicles given");
+        let setup = FitSetup::load(
+            &profile,
+            config.as_deref(),
+            clearance_mm,
+            signal_arg(signal.as_deref())?,
+        )?;
+        let outcome = setup.fit(&vehicles)?;
+        fleet_fit::write_atomic(&out, &outcome.text)?;
+        Ok(serde_json::to_string(&outcome)?)
+    })
+}
+
 /// The crate version (`shimmy-monitor <version>` is the lake's `model_version`).
 #[pyfunction]
 fn model_version() -> String {
@@ -348,6 +435,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(decode_stream, m)?)?;
     m.add_function(wrap_pyfunction!(estimate_json, m)?)?;
     m.add_function(wrap_pyfunction!(export_json, m)?)?;
+    m.add_function(wrap_pyfunction!(fleet_fit_vehicle_json, m)?)?;
+    m.add_function(wrap_pyfunction!(fleet_fit_json, m)?)?;
     m.add_function(wrap_pyfunction!(model_version, m)?)?;
     Ok(())
 }

@@ -133,3 +133,34 @@ def fleet(firmware_sim_bin, tmp_path_factory):
         for r in manifest:
             f.write(f"{r['vehicle']},{r['profile']},{r['log']}\n")
     return dict(dir=d, manifest=path, rows=manifest, corrupt=bad, unknown=unk)
+
+
+@pytest.fixture(scope="session")
+def new_joints(firmware_sim_bin, tmp_path_factory):
+    """Five simulated RAV4s at new joints (0.03 mm; 6 braking events each; seeds 7300..7304),
+    one folder per vehicle (``nj-0`` .. ``nj-4``; ``nj-0``'s drive split into two logs), and
+    their manifest rows; for the car model's correction (``shimmy fleet-fit``)."""
+    d = tmp_path_factory.mktemp("new_joints")
+    sim = d / "sim"
+    subprocess.run(
+        [str(firmware_sim_bin), "fleet", "--profile", "toyota_rav4", "--vehicles", "5",
+         "--events", "6", "--seed-base", "7300", "--clearance-mm", "0.03", "--logs-only",
+         "--work-dir", str(sim), "--threads", "2"],
+        cwd=REPO, check=True, capture_output=True,
+    )
+    dirs, manifest = [], []
+    for k in range(5):
+        v = d / f"nj-{k}"
+        v.mkdir()
+        src = sim / f"fleet_{7300 + k}.log"
+        if k == 0:
+            lines = src.read_bytes().splitlines(keepends=True)
+            (v / "a.log").write_bytes(b"".join(lines[: len(lines) // 2]))
+            (v / "b.log").write_bytes(b"".join(lines[len(lines) // 2 :]))
+        else:
+            shutil.copy(src, v / "drive.log")
+        dirs.append(v)
+        for p in sorted(v.iterdir()):
+            manifest.append(dict(vehicle=v.name, profile="toyota_rav4", log=str(p),
+                                 seq=str(len(manifest))))
+    return dict(dir=d, vehicles=dirs, manifest=manifest)

@@ -201,3 +201,43 @@ def test_bad_input_raises_a_clear_error(tmp_path, sim_logs, data_dir, shimmy_bin
         sm.export(str(sim_logs[0]), "toyota_rav4", "../x", tmp_path / "lake")
     with pytest.raises(sm.ShimmyError, match="no logs"):
         sm.estimate([], "toyota_rav4")
+
+
+def test_fleet_fit_writes_what_the_cli_writes(shimmy_bin, new_joints, tmp_path):
+    dirs = [str(d) for d in new_joints["vehicles"]]
+    cli_out = tmp_path / "cli.toml"
+    cli = run_cli(shimmy_bin, "fleet-fit", "--profile", "toyota_rav4", "-o", cli_out, *dirs)
+    out = tmp_path / "py.toml"
+    r = sm.fleet_fit(dirs, "toyota_rav4", out)
+    assert out.read_bytes() == cli_out.read_bytes()
+    assert r["vehicles"] == 5 and r["skipped"] == 0 and r["out"] == str(out)
+    c = r["correction"]["angle_deg"]
+    assert c["vehicles"] == 5 and c["events"] == 30 and len(c["gain"]) == 3
+    assert r["summary"] == [l for l in cli.stdout.splitlines() if l.startswith("angle:")]
+    # The plant has no steering column, so its bus carries no torque: said, not fitted.
+    assert "torque_nm" not in r["correction"]
+    assert any(n.startswith("torque: 0 vehicle(s)") for n in r["not_fitted"])
+    # {vehicle: logs} gives the same; an events cache is written and read back unchanged.
+    by_id = {os.path.basename(d): sorted(str(p) for p in Path(d).iterdir()) for d in dirs}
+    cache = tmp_path / "cache"
+    out2 = tmp_path / "py2.toml"
+    sm.fleet_fit(by_id, "toyota_rav4", out2, events_cache=cache)
+    assert out2.read_bytes() == cli_out.read_bytes()
+    cached = {p.name: p.read_bytes() for p in cache.iterdir()}
+    assert len(cached) == 5
+    sm.fleet_fit(by_id, "toyota_rav4", out2, events_cache=cache)
+    assert {p.name: p.read_bytes() for p in cache.iterdir()} == cached
+    assert out2.read_bytes() == cli_out.read_bytes()
+
+
+def test_fleet_fit_refuses_what_it_cannot_fit(new_joints, tmp_path):
+    one = [str(new_joints["vehicles"][0])]
+    with pytest.raises(sm.ShimmyError, match="at least 2 needed"):
+        sm.fleet_fit(one, "toyota_rav4", tmp_path / "c.toml")
+    assert not (tmp_path / "c.toml").exists()
+    with pytest.raises(sm.ShimmyError, match="neither a log file nor a directory"):
+        sm.fleet_fit([str(tmp_path / "nope")], "toyota_rav4", tmp_path / "c.toml")
+    with pytest.raises(sm.ShimmyError, match="signal must be"):
+        sm.fleet_fit(one * 2, "toyota_rav4", tmp_path / "c.toml", signal="yaw")
+    with pytest.raises(sm.ShimmyError, match="clearance"):
+        sm.fleet_fit(one * 2, "toyota_rav4", tmp_path / "c.toml", clearance_mm=0.0)

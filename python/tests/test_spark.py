@@ -4,7 +4,9 @@ vehicles, and the DuckDB queries (python/examples/queries.sql) over the lake it 
 Checked: each vehicle's estimate and standing alerts equal `shimmy estimate --json` on the
 same logs; a corrupt log and a vehicle of an unknown profile land in the errors table while the
 others finish; a rerun changes no file of the lake; the queries' answers agree with the CLI
-(the vehicles with an open clearance alert are exactly those the CLI raises one for)."""
+(the vehicles with an open clearance alert are exactly those the CLI raises one for). And the
+correction fit (`run_fleet_fit`) on five vehicles at new joints and one unreadable: the file
+`shimmy fleet-fit` writes, byte for byte; a rerun reads every vehicle from its cache."""
 
 import hashlib
 import importlib.util
@@ -161,3 +163,36 @@ def test_queries_agree_with_the_cli(job, fleet, shimmy_bin):
         assert t["last_clearance_mm"] == r["clearance_mm"], v
         assert t["last_detectable"] == r["detectable"], v
         assert t["events_used"] == r["events_used"], v
+
+
+def test_fleet_fit_job_writes_what_the_cli_writes(spark, new_joints, shimmy_bin, tmp_path):
+    from conftest import run_cli
+
+    # A sixth vehicle whose only log is not a CAN log: skipped with its reason, counted.
+    bad = tmp_path / "nj-bad.log"
+    bad.write_bytes(b"not a can log\n")
+    manifest = new_joints["manifest"] + [
+        dict(vehicle="nj-bad", profile="toyota_rav4", log=str(bad), seq="99")
+    ]
+    cli_out = tmp_path / "cli.toml"
+    # The CLI in the order the job fits: the vehicles' IDs.
+    run_cli(shimmy_bin, "fleet-fit", "--profile", "toyota_rav4", "-o", cli_out,
+            *[str(v) for v in new_joints["vehicles"]], bad)
+    out = tmp_path / "job.toml"
+    r = fleet_job.run_fleet_fit(spark, manifest, str(out))
+    assert out.read_bytes() == cli_out.read_bytes()
+    assert r["vehicles"] == 6 and r["skipped"] == 1
+    assert r["correction"]["angle_deg"]["events"] == 30
+    cache = Path(str(out) + ".events")
+    files = {p.name: p.read_bytes() for p in cache.iterdir()}
+    assert len(files) == 6
+    # A rerun resumes from the cache: nothing read again, the same file written.
+    r2 = fleet_job.run_fleet_fit(spark, manifest, str(out))
+    assert {p.name: p.read_bytes() for p in cache.iterdir()} == files
+    assert out.read_bytes() == cli_out.read_bytes() and r2["summary"] == r["summary"]
+    # One correction is one car model's.
+    with pytest.raises(ValueError, match="one car model"):
+        fleet_job.run_fleet_fit(
+            spark, manifest + [dict(vehicle="x", profile="vw_mqb", log=str(bad), seq="100")],
+            str(tmp_path / "mixed.toml"),
+        )
