@@ -17,11 +17,12 @@
 
 use super::lines::{Line, LineReader};
 use super::{CanSource, Skip, SourceStats};
-use crate::wire::asc::{AscLine, AscParser};
+use crate::wire::asc::AscParser;
 use crate::wire::blf::{BlfEvent, BlfReader};
 use crate::wire::candump::{self, Parsed};
+use crate::wire::frame::TextLine;
 use crate::wire::mf4::{self, Mf4Reader, Mf4Step};
-use crate::wire::trc::{TrcLine, TrcParser};
+use crate::wire::trc::TrcParser;
 use crate::wire::{Frame, FrameKind};
 use std::fs::File;
 use std::io::{self, Read, Seek};
@@ -338,30 +339,24 @@ impl LogReader {
                     Ok(text) => text,
                     Err(step) => return Ok(step),
                 };
-                Ok(match parser.parse_line(bytes) {
-                    Ok(AscLine::Frame(f)) => {
-                        *out = f;
-                        Step::Frame
-                    }
-                    Ok(AscLine::Header) => Step::Nothing,
-                    Ok(AscLine::OtherEvent) => Step::Skipped(0, String::new()),
-                    Err(e) => Step::Malformed(lines.line_no(), half_written(e, terminated)),
-                })
+                Ok(text_step(
+                    parser.parse_line(bytes),
+                    out,
+                    lines.line_no(),
+                    terminated,
+                ))
             }
             Kind::Trc(lines, parser) => {
                 let (bytes, terminated) = match next_text(lines)? {
                     Ok(text) => text,
                     Err(step) => return Ok(step),
                 };
-                Ok(match parser.parse_line(bytes) {
-                    Ok(TrcLine::Frame(f)) => {
-                        *out = f;
-                        Step::Frame
-                    }
-                    Ok(TrcLine::Header) => Step::Nothing,
-                    Ok(TrcLine::OtherEvent) => Step::Skipped(0, String::new()),
-                    Err(e) => Step::Malformed(lines.line_no(), half_written(e, terminated)),
-                })
+                Ok(text_step(
+                    parser.parse_line(bytes),
+                    out,
+                    lines.line_no(),
+                    terminated,
+                ))
             }
             Kind::Blf(blf) => Ok(match blf.next_event()? {
                 Some(Ok(BlfEvent::Frame(f))) => {
@@ -386,6 +381,24 @@ impl LogReader {
                 })
             }
         }
+    }
+}
+
+/// The step of a text log's line (ASC, TRC), `line_no` its number.
+fn text_step<E: std::fmt::Display>(
+    line: Result<TextLine, E>,
+    out: &mut Frame,
+    line_no: u64,
+    terminated: bool,
+) -> Step {
+    match line {
+        Ok(TextLine::Frame(f)) => {
+            *out = f;
+            Step::Frame
+        }
+        Ok(TextLine::Header) => Step::Nothing,
+        Ok(TextLine::OtherEvent) => Step::Skipped(0, String::new()),
+        Err(e) => Step::Malformed(line_no, half_written(e, terminated)),
     }
 }
 

@@ -35,14 +35,7 @@ use super::frame::{fd_dlc_to_len, fd_len_to_dlc, ChannelNames, Frame, FrameKind,
 pub const CAN_ERR_PROT: u32 = 0x08;
 
 /// What one ASC line holds.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum AscLine {
-    Frame(Frame),
-    /// A header, comment, or block marker (no event).
-    Header,
-    /// A timestamped event that is not a CAN frame (status, statistics, J1939TP, ...).
-    OtherEvent,
-}
+pub type AscLine = super::frame::TextLine;
 
 /// What is wrong with an ASC line.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]

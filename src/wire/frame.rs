@@ -105,6 +105,17 @@ impl std::fmt::Display for IfaceName {
     }
 }
 
+/// What one line of a text log (Vector ASC, PEAK TRC) holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TextLine {
+    Frame(Frame),
+    /// A header, comment, block marker or empty line: no event.
+    Header,
+    /// A timestamped event that is not a CAN frame (bus status, statistics, error counters,
+    /// J1939TP, ...): counted as skipped by the reader.
+    OtherEvent,
+}
+
 /// What kind of frame this is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum FrameKind {

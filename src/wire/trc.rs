@@ -27,14 +27,7 @@ use super::asc::{lossy, tokens, CAN_ERR_PROT};
 use super::frame::{fd_dlc_to_len, fd_len_to_dlc, ChannelNames, Frame, FrameKind, IfaceName};
 
 /// What one TRC line is.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum TrcLine {
-    Frame(Frame),
-    /// A header, comment or empty line.
-    Header,
-    /// A message line that is not a CAN frame (bus status, error counters, events).
-    OtherEvent,
-}
+pub type TrcLine = super::frame::TextLine;
 
 /// What is wrong with a TRC line.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
@@ -45,6 +38,8 @@ pub enum TrcError {
     Columns(String),
     #[error("line ends early: missing {0}")]
     Truncated(&'static str),
+    #[error("bad message number {0:?} (a number and ')' expected)")]
+    MessageNumber(String),
     #[error("bad time offset {0:?} (milliseconds expected)")]
     Offset(String),
     #[error("bad bus number {0:?}")]
@@ -229,7 +224,7 @@ impl TrcParser {
         let mut tk = tokens(line);
         let n = tk.next().ok_or(TrcError::Truncated("the message number"))?;
         if !n.ends_with(b")") {
-            return Err(TrcError::Truncated("the message number's ')'"));
+            return Err(TrcError::MessageNumber(lossy(n)));
         }
         let o = tk.next().ok_or(TrcError::Truncated("the time offset"))?;
         let t_ns = self.time(o)?;
@@ -574,5 +569,12 @@ mod tests {
         assert!(e(&mut p, "1 1.0 DT 0100 Rx 9 00").contains("DLC"));
         assert!(e(&mut p, ";$FILEVERSION=3.0").contains("version"));
         assert!(e(&mut p, ";$COLUMNS=N,O,X").contains("COLUMNS"));
+        // Version 1: the message number ends in ')'; a line without it says so, not that it
+        // ended early.
+        let mut p = TrcParser::new();
+        parse(&mut p, ";$FILEVERSION=1.1");
+        let msg = e(&mut p, "1  17535.4 Rx 0100 1 00");
+        assert!(msg.contains("bad message number \"1\""), "{msg}");
+        assert!(e(&mut p, "1)").contains("line ends early: missing the time offset"));
     }
 }
