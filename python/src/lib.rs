@@ -341,6 +341,15 @@ fn signal_arg(signal: Option<&str>) -> anyhow::Result<Option<SignalArg>> {
     }
 }
 
+fn fit_setup(
+    profile: &str,
+    config: Option<&std::path::Path>,
+    clearance_mm: f64,
+    signal: Option<&str>,
+) -> anyhow::Result<FitSetup> {
+    FitSetup::load(profile, config, clearance_mm, signal_arg(signal)?)
+}
+
 /// `shimmy fleet-fit`'s reading of one vehicle's drives at new joints: its events as one JSON
 /// object (a line of the CLI's events cache). With `cache`, the object is kept in that file and
 /// read back while the logs are unchanged (sizes and modification times), so a fleet job that
@@ -368,12 +377,7 @@ fn fleet_fit_vehicle_json(
                 }
             }
         }
-        let setup = FitSetup::load(
-            &profile,
-            config.as_deref(),
-            clearance_mm,
-            signal_arg(signal.as_deref())?,
-        )?;
+        let setup = fit_setup(&profile, config.as_deref(), clearance_mm, signal.as_deref())?;
         let v = setup.read_vehicle(&vehicle, logs);
         let text = serde_json::to_string(&v)?;
         if let Some(c) = &cache {
@@ -410,12 +414,7 @@ fn fleet_fit_json(
             })
             .collect::<anyhow::Result<_>>()?;
         anyhow::ensure!(!vehicles.is_empty(), "no vehicles given");
-        let setup = FitSetup::load(
-            &profile,
-            config.as_deref(),
-            clearance_mm,
-            signal_arg(signal.as_deref())?,
-        )?;
+        let setup = fit_setup(&profile, config.as_deref(), clearance_mm, signal.as_deref())?;
         let outcome = setup.fit(&vehicles)?;
         fleet_fit::write_atomic(&out, &outcome.text)?;
         Ok(serde_json::to_string(&outcome)?)
