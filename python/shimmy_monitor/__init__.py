@@ -331,8 +331,10 @@ def fleet_fit(
     :param signal: ``"angle"`` or ``"torque"`` to fit only that signal's table.
     :param events_cache: a folder keeping each vehicle's events as it is read (resume).
     :returns: ``correction`` (the file's content as a dict: ``angle_deg``/``torque_nm`` with
-        ``gain``, ``gain_se_ln``, ``spread_ln``, ``vehicles``, ``events``, ...), ``summary`` (a
-        line per signal fitted), ``not_fitted`` (signals left out, with why), ``vehicles``,
+        ``gain``, ``gain_se_ln``, ``spread_ln``, ``gains_agree_p``, ``vehicles``, ``events``,
+        ...), ``summary`` (a line per signal fitted), ``not_fitted`` (signals left out, with
+        why), ``warnings`` (signals whose features' gains disagree: the car differs from the
+        model by more than a gain, and the correction should not be shipped), ``vehicles``,
         ``skipped`` (vehicles without a usable braking event) and ``out``.
     :raises ShimmyError: unknown profile, a missing log, or nothing could be fitted (too few
         vehicles with events, a sensor noisier than its table: the message says which).

@@ -234,6 +234,9 @@ pub struct FitOutcome {
     pub summary: Vec<String>,
     /// Signals not fitted, each with the reason.
     pub not_fitted: Vec<String>,
+    /// Signals fitted whose correction should not be trusted, each with the reason (their
+    /// features' gains disagree: the car differs from the model by more than a gain).
+    pub warnings: Vec<String>,
     pub vehicles: usize,
     pub skipped: usize,
 }
@@ -348,6 +351,7 @@ impl FitSetup {
         let mut file = CorrectionFile::default();
         let mut lines = Vec::new();
         let mut not_fitted = Vec::new();
+        let mut warnings = Vec::new();
         let mut refused: Vec<&str> = Vec::new();
         for (signal, table) in targets {
             let name = signal_name(signal);
@@ -392,6 +396,20 @@ impl FitSetup {
             })
             .with_context(|| format!("fitting the {name} correction"))?;
             lines.push(summary(signal, &c));
+            if let Some(p) = c
+                .gains_agree_p
+                .filter(|&p| p < correction::GAINS_DISAGREE_P)
+            {
+                warnings.push(format!(
+                    "{name}: the features' gains disagree (rms ×{:.3}, peak ×{:.3}, cruise \
+                     ×{:.3}; p = {p:.3} that they are one gain): this car model differs from the \
+                     table's by more than a signal gain (a scrub radius, brake discs, another \
+                     steering column). The correction will not make its intervals honest: build \
+                     a table for its chassis (a chassis variant, docs/ADDING_A_CAR.md) rather \
+                     than ship this correction",
+                    c.gain[0], c.gain[1], c.gain[2]
+                ));
+            }
             file.set(signal, c);
         }
         if file.angle_deg.is_none() && file.torque_nm.is_none() {
@@ -415,11 +433,16 @@ impl FitSetup {
             self.profile.name, self.clearance_mm
         );
         let body = toml::to_string_pretty(&file).context("serialising the correction")?;
+        let header = warnings.iter().fold(header, |mut h, w| {
+            h.push_str(&format!("# WARNING: {w}\n"));
+            h
+        });
         Ok(FitOutcome {
             correction: file,
             text: format!("{header}{body}"),
             summary: lines,
             not_fitted,
+            warnings,
             vehicles: n,
             skipped,
         })
@@ -504,6 +527,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for l in &out.summary {
         println!("{l}");
     }
+    for w in &out.warnings {
+        eprintln!("{TOOL}: warning: {w}");
+    }
     println!(
         "{n} vehicle(s), {} skipped; written to {}",
         out.skipped,
@@ -537,8 +563,13 @@ fn summary(signal: SteerSignal, c: &Correction) -> String {
             }
         })
         .collect();
+    let agree = match c.gains_agree_p {
+        Some(p) if p < correction::GAINS_DISAGREE_P => format!("; the gains disagree (p {p:.3})"),
+        Some(p) => format!("; the gains agree (p {p:.2})"),
+        None => String::new(),
+    };
     format!(
-        "{}: {}; spread {:.3} (ln); {} vehicles, {} events; ln-likelihood +{:.1} over none",
+        "{}: {}{agree}; spread {:.3} (ln); {} vehicles, {} events; ln-likelihood +{:.1} over none",
         signal_name(signal),
         gains.join(", "),
         c.spread_ln,

@@ -67,6 +67,13 @@ pub struct Correction {
     /// and spread 0), with the evidence power: how much the fleet says.
     #[serde(default)]
     pub ln_likelihood_gain: f64,
+    /// Whether the features' gains agree with one gain shared by all: the p-value of a Wald
+    /// test of their differences, with the fit's covariance ([`gains_agree_p`]). A small value
+    /// says the car model differs from the table's by more than a signal gain (a scrub
+    /// radius, a brake disc variation, another column), which the correction cannot make
+    /// honest. `None` where fewer than two gains were fitted (and in files written before it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gains_agree_p: Option<f64>,
 }
 
 impl Correction {
@@ -89,6 +96,12 @@ impl Correction {
             anyhow::ensure!(
                 s.is_finite() && *s >= 0.0,
                 "gain_se_ln[{i}] must be ≥ 0 (got {s})"
+            );
+        }
+        if let Some(p) = self.gains_agree_p {
+            anyhow::ensure!(
+                (0.0..=1.0).contains(&p),
+                "gains_agree_p must be a probability (got {p})"
             );
         }
         anyhow::ensure!(
@@ -181,6 +194,7 @@ fn objective(
         clearance_mm,
         table_fingerprint: String::new(),
         ln_likelihood_gain: 0.0,
+        gains_agree_p: None,
     };
     // Each vehicle's term on its own thread's share of the vehicles; summed in vehicle order,
     // so the result does not depend on the number of threads.
@@ -379,6 +393,7 @@ pub fn fit(
         }
     }
     let mut se = [0.0; N_FEAT];
+    let mut agree_p = None;
     if k > 0 {
         let cov = (-hess)
             .try_inverse()
@@ -392,6 +407,8 @@ pub fn fit(
         for (a, &i) in free.iter().enumerate() {
             se[i] = cov[(a, a)].sqrt();
         }
+        let ln_g: Vec<f64> = free.iter().map(|&i| best[i]).collect();
+        agree_p = gains_agree_p(&ln_g, &cov);
     }
     Ok(Correction {
         gain: [best[0].exp(), best[1].exp(), best[2].exp()],
@@ -402,7 +419,73 @@ pub fn fit(
         clearance_mm,
         table_fingerprint: table.fingerprint.clone(),
         ln_likelihood_gain: l_best - l0,
+        gains_agree_p: agree_p,
     })
+}
+
+/// Below this [`Correction::gains_agree_p`] the features' gains are said to disagree.
+pub const GAINS_DISAGREE_P: f64 = 0.05;
+
+/// The p-value of the hypothesis that the ln gains `ln_g` (covariance `cov`) are one gain: a
+/// Wald test of their differences from the first, χ² with one degree of freedom fewer than
+/// gains. `None` with fewer than two gains or a singular covariance of the differences.
+///
+/// The covariance is the fit's: of the likelihood with the estimator's evidence power, so the
+/// test is as lenient as the estimator is with the model's misfit.
+pub fn gains_agree_p(ln_g: &[f64], cov: &nalgebra::DMatrix<f64>) -> Option<f64> {
+    let k = ln_g.len();
+    if k < 2 || cov.nrows() != k || cov.ncols() != k {
+        return None;
+    }
+    let m = k - 1;
+    let d = nalgebra::DVector::from_fn(m, |a, _| ln_g[a + 1] - ln_g[0]);
+    let s = nalgebra::DMatrix::from_fn(m, m, |a, b| {
+        cov[(a + 1, b + 1)] - cov[(a + 1, 0)] - cov[(0, b + 1)] + cov[(0, 0)]
+    });
+    let w = (d.transpose() * s.try_inverse()? * &d)[(0, 0)];
+    if !w.is_finite() || w < 0.0 {
+        return None;
+    }
+    Some(chi2_sf(w, m))
+}
+
+/// P(χ²_m > w) for m = 1 or 2 (the only degrees of freedom three features give).
+fn chi2_sf(w: f64, m: usize) -> f64 {
+    match m {
+        1 => erfc((w / 2.0).sqrt()),
+        2 => (-w / 2.0).exp(),
+        _ => {
+            // Wilson–Hilferty: the cube root of χ²/m is close to normal.
+            let mf = m as f64;
+            let z = ((w / mf).cbrt() - (1.0 - 2.0 / (9.0 * mf))) / (2.0 / (9.0 * mf)).sqrt();
+            0.5 * erfc(z / std::f64::consts::SQRT_2)
+        }
+    }
+}
+
+/// The complementary error function (Chebyshev fit, relative error below 1.2e-7).
+fn erfc(x: f64) -> f64 {
+    let z = x.abs();
+    let t = 1.0 / (1.0 + 0.5 * z);
+    let c = [
+        -1.265_512_23,
+        1.000_023_68,
+        0.374_091_96,
+        0.096_784_18,
+        -0.186_288_06,
+        0.278_868_07,
+        -1.135_203_98,
+        1.488_515_87,
+        -0.822_152_23,
+        0.170_872_77,
+    ];
+    let poly = c.iter().rev().fold(0.0, |acc, &ci| acc * t + ci);
+    let r = t * (-z * z + poly).exp();
+    if x >= 0.0 {
+        r
+    } else {
+        2.0 - r
+    }
 }
 
 #[cfg(test)]
@@ -433,7 +516,7 @@ mod tests {
         t: &ResponseTable,
         ic: usize,
         n: usize,
-        gain: f64,
+        gain: [f64; 3],
         seed: u64,
     ) -> Vec<Vec<FitEvent>> {
         let lm = t.linear.as_ref().expect("linear model");
@@ -460,9 +543,9 @@ mod tests {
                             .map(|f| lm.mean_at(ic, iv, f, &x, decel_g) + eta[f] + eps[f])
                             .collect();
                         FitEvent {
-                            rms: gain * unfloor(z[0], Z_FLOOR_DEG[0]),
-                            peak: gain * unfloor(z[1], Z_FLOOR_DEG[1]),
-                            cruise_rms: Some(gain * unfloor(z[2], Z_FLOOR_DEG[0])),
+                            rms: gain[0] * unfloor(z[0], Z_FLOOR_DEG[0]),
+                            peak: gain[1] * unfloor(z[1], Z_FLOOR_DEG[1]),
+                            cruise_rms: Some(gain[2] * unfloor(z[2], Z_FLOOR_DEG[0])),
                             v0_kmh: t.speed_kmh[iv],
                             decel_g,
                         }
@@ -491,7 +574,7 @@ mod tests {
             .expect("a clearance at new joints");
         let c_mm = t.clearance_mm[ic];
         for (gain, seed) in [(1.0, 1u64), (1.3, 2), (0.7, 3)] {
-            let fleet = draw_fleet(&t, ic, 30, gain, seed);
+            let fleet = draw_fleet(&t, ic, 30, [gain; 3], seed);
             let c = fit(&t, &cfg, &fleet, c_mm, |_| {}).expect("fit");
             for f in 0..2 {
                 let err = (c.gain[f] / gain).ln();
@@ -504,20 +587,54 @@ mod tests {
                 assert!(c.gain_se_ln[f] > 0.0 && c.gain_se_ln[f] < 0.15);
             }
             assert_eq!((c.vehicles, c.events), (30, 300));
+            let p = c.gains_agree_p.expect("three gains fitted");
+            assert!(p > GAINS_DISAGREE_P, "gain {gain}: one gain, yet p = {p}");
             if gain != 1.0 {
                 assert!(c.ln_likelihood_gain > 3.0, "gain {gain}: {c:?}");
             }
         }
     }
 
+    /// A fleet whose peak reads 40 % stronger than its RMS and cruise (a shake the model does
+    /// not have, not a gain on the signal) is told apart: its gains disagree.
+    #[test]
+    fn gains_that_differ_between_features_are_said_to_disagree() {
+        let t = reference_table();
+        let cfg = EstimatorConfig::default();
+        let ic = t.clearance_mm.iter().position(|&c| c >= 0.03).unwrap();
+        let fleet = draw_fleet(&t, ic, 30, [1.0, 1.4, 1.0], 6);
+        let c = fit(&t, &cfg, &fleet, t.clearance_mm[ic], |_| {}).expect("fit");
+        let p = c.gains_agree_p.expect("three gains fitted");
+        assert!(p < GAINS_DISAGREE_P, "{c:?}");
+        assert!(c.gain[1] / c.gain[0] > 1.2, "{c:?}");
+    }
+
+    #[test]
+    fn the_tail_probabilities_are_right() {
+        // erfc(0) = 1, erfc(1) = 0.157299207, χ²₁ at 3.841 and χ²₂ at 5.991: 0.05.
+        assert!((erfc(0.0) - 1.0).abs() < 1e-7);
+        assert!((erfc(1.0) - 0.157_299_207).abs() < 1e-7);
+        assert!((erfc(-1.0) - 1.842_700_793).abs() < 1e-7);
+        assert!((chi2_sf(3.841_459, 1) - 0.05).abs() < 1e-6);
+        assert!((chi2_sf(5.991_465, 2) - 0.05).abs() < 1e-6);
+        let d = nalgebra::DMatrix::from_row_slice(2, 2, &[0.01, 0.0, 0.0, 0.01]);
+        // Differences of 0.1 with variance 0.02: W = 0.5, p = erfc(0.5) = 0.4795.
+        let p = gains_agree_p(&[0.0, 0.1], &d).unwrap();
+        assert!((p - 0.479_500_122).abs() < 1e-6, "{p}");
+        assert_eq!(
+            gains_agree_p(&[0.3], &nalgebra::DMatrix::from_element(1, 1, 0.01)),
+            None
+        );
+    }
+
     #[test]
     fn too_few_vehicles_and_a_bad_clearance_are_refused() {
         let t = reference_table();
         let cfg = EstimatorConfig::default();
-        let fleet = draw_fleet(&t, 2, 1, 1.0, 4);
+        let fleet = draw_fleet(&t, 2, 1, [1.0; 3], 4);
         let e = fit(&t, &cfg, &fleet, 0.03, |_| {}).unwrap_err();
         assert!(e.to_string().contains("at least 2 vehicles"), "{e}");
-        let e = fit(&t, &cfg, &draw_fleet(&t, 2, 3, 1.0, 5), 0.0, |_| {}).unwrap_err();
+        let e = fit(&t, &cfg, &draw_fleet(&t, 2, 3, [1.0; 3], 5), 0.0, |_| {}).unwrap_err();
         assert!(e.to_string().contains("above 0 mm"), "{e}");
     }
 
@@ -532,6 +649,7 @@ mod tests {
             clearance_mm: 0.03,
             table_fingerprint: String::new(),
             ln_likelihood_gain: 0.0,
+            gains_agree_p: None,
         };
         assert!(c.validate().is_ok());
         c.gain[1] = 0.0;
