@@ -453,6 +453,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             return 1
         for line in r["not_fitted"] + r["summary"]:
             print(line)
+        for w in r["warnings"]:
+            print(f"shimmy_monitor.spark: warning: {w}", file=sys.stderr)
         print(f"{r['vehicles']} vehicle(s), {r['skipped']} skipped; written to {r['out']}")
         spark.stop()
         return 0
