@@ -229,17 +229,7 @@ def events(
 def _vehicle_logs(v: PathLike) -> List[str]:
     """A vehicle given as a path: the log file, or the files of the folder in name order (as
     ``shimmy fleet-fit`` reads it)."""
-    p = os.fspath(v)
-    if os.path.isdir(p):
-        logs = sorted(
-            os.path.join(p, n) for n in os.listdir(p) if os.path.isfile(os.path.join(p, n))
-        )
-        if not logs:
-            raise ShimmyError(f"vehicle directory {p} holds no file")
-        return logs
-    if os.path.isfile(p):
-        return [p]
-    raise ShimmyError(f"vehicle {p} is neither a log file nor a directory")
+    return [os.fspath(p) for p in _native.fleet_vehicle_logs(os.fspath(v))]
 
 
 def _fit_cache_file(cache: str, vehicle: str, logs: Sequence[str]) -> str:

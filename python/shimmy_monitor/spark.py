@@ -368,17 +368,18 @@ def run_fleet_fit(
             ev = json.dumps({"key": "", "vehicle": vehicle, "skipped": str(e)})
         return pd.DataFrame([(vehicle, ev)], columns=["vehicle", "events_json"])
 
-    rows = (
+    rows = sorted(
         df.repartition(partitions, "vehicle")
         .groupBy("vehicle")
         .applyInPandas(per_vehicle, schema="vehicle string, events_json string")
-        .collect()
+        .collect(),
+        key=lambda r: r["vehicle"],
     )
-    read = [r["events_json"] for r in sorted(rows, key=lambda r: r["vehicle"])]
-    for r in sorted(rows, key=lambda r: r["vehicle"]):
+    for r in rows:
         d = json.loads(r["events_json"])
         if d.get("skipped"):
             print(f"fleet-fit: vehicle {r['vehicle']}: skipped: {d['skipped']}", file=sys.stderr)
+    read = [r["events_json"] for r in rows]
     return sm.fleet_fit_events(read, profile, out, config, clearance_mm, signal)
 
 

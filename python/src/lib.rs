@@ -350,6 +350,13 @@ fn fit_setup(
     FitSetup::load(profile, config, clearance_mm, signal_arg(signal)?)
 }
 
+/// A vehicle given as a path, as `shimmy fleet-fit` takes it: the log file, or the files of the
+/// folder in name order.
+#[pyfunction]
+fn fleet_vehicle_logs(py: Python<'_>, vehicle: PathBuf) -> PyResult<Vec<PathBuf>> {
+    guarded(py, move || fleet_fit::vehicle_logs(&vehicle))
+}
+
 /// `shimmy fleet-fit`'s reading of one vehicle's drives at new joints: its events as one JSON
 /// object (a line of the CLI's events cache). With `cache`, the object is kept in that file and
 /// read back while the logs are unchanged (sizes and modification times), so a fleet job that
@@ -434,6 +441,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(decode_stream, m)?)?;
     m.add_function(wrap_pyfunction!(estimate_json, m)?)?;
     m.add_function(wrap_pyfunction!(export_json, m)?)?;
+    m.add_function(wrap_pyfunction!(fleet_vehicle_logs, m)?)?;
     m.add_function(wrap_pyfunction!(fleet_fit_vehicle_json, m)?)?;
     m.add_function(wrap_pyfunction!(fleet_fit_json, m)?)?;
     m.add_function(wrap_pyfunction!(model_version, m)?)?;

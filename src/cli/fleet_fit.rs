@@ -95,13 +95,6 @@ pub struct VehicleEvents {
     noise: Vec<NoiseSeen>,
 }
 
-impl VehicleEvents {
-    /// Usable braking events read (any signal).
-    pub fn events(&self) -> usize {
-        self.evidence.len()
-    }
-}
-
 /// One signal's noise at a vehicle's stops (src/observer/noise_floor.rs) against the table's.
 #[derive(Clone, Copy, Serialize, Deserialize)]
 struct NoiseSeen {
