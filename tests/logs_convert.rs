@@ -188,7 +188,10 @@ fn trc_output_is_refused() {
         .err()
         .expect("a .trc output is refused");
     assert_eq!(e.kind(), std::io::ErrorKind::InvalidInput);
-    assert!(e.to_string().contains("PEAK TRC is read, not written"), "{e}");
+    assert!(
+        e.to_string().contains("PEAK TRC is read, not written"),
+        "{e}"
+    );
     assert!(!out.exists());
     let input = dir.path().join("in.log");
     std::fs::write(&input, "(1.000000) can0 123#11\n").unwrap();
