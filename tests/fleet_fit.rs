@@ -250,3 +250,95 @@ fn a_sensor_noisier_than_its_table_is_refused_not_taken_for_a_gain() {
     );
     assert!(!corr.exists());
 }
+
+/// A correction whose fit found the features' gains unequal (`gains_agree_p` below 0.05, as
+/// `shimmy fleet-fit` writes it for a scrub radius or brake discs the table lacks) makes the
+/// estimate say the model does not fit this vehicle, naming the correction and what to build,
+/// in `shimmy estimate` and in shimmyd alike; its numbers stay the correction's. The same
+/// correction with gains that agree adds no such clause.
+#[test]
+fn a_correction_whose_gains_disagree_says_the_model_does_not_fit() {
+    let dir = tempfile::tempdir().unwrap();
+    let plant = e2e_common::column_vehicle(dir.path());
+    let logs = dir.path().join("drive");
+    let out = Command::new(e2e_common::firmware_sim())
+        .args(["fleet", "--profile", "toyota_rav4", "--plant"])
+        .arg(&plant)
+        .args(["--vehicles", "1", "--events", "12", "--seed-base", "7300"])
+        .args(["--clearance-mm", "0.05", "--logs-only", "--work-dir"])
+        .arg(&logs)
+        .output()
+        .unwrap();
+    ok(&out);
+    let log = logs.join("fleet_7300.log");
+    let table = e2e_common::workspace().join("config/vehicles/toyota_rav4/table_torque.json");
+    let fp = shimmy::observer::table::ResponseTable::load(&table)
+        .unwrap()
+        .fingerprint;
+    let with_p = |name: &str, p: f64| {
+        let copy = e2e_common::profile_copy("toyota_rav4", dir.path(), name);
+        let prof = std::fs::read_to_string(copy.join("profile.toml")).unwrap();
+        std::fs::write(
+            copy.join("profile.toml"),
+            format!("correction = \"correction.toml\"\n{prof}"),
+        )
+        .unwrap();
+        std::fs::write(
+            copy.join("correction.toml"),
+            format!(
+                "[torque_nm]\ngain = [1.0, 1.25, 1.0]\ngain_se_ln = [0.05, 0.05, 0.07]\n\
+                 spread_ln = 0.1\nvehicles = 40\nevents = 400\nclearance_mm = 0.03\n\
+                 table_fingerprint = {fp:?}\ngains_agree_p = {p:?}\n"
+            ),
+        )
+        .unwrap();
+        copy
+    };
+    let agree = with_p("rav4_agree", 0.5);
+    let disagree = with_p("rav4_disagree", 0.001);
+    let estimate = |profile: &Path| {
+        let (stdout, _) = ok(&shimmy(&[
+            "estimate".as_ref(),
+            "--profile".as_ref(),
+            profile.as_os_str(),
+            log.as_os_str(),
+        ]));
+        serde_json::from_str::<Value>(&stdout).unwrap()
+    };
+    let a = estimate(&agree);
+    let d = estimate(&disagree);
+    assert_eq!(a["signals"]["estimate_from"], "torque_nm");
+    assert!(a["model_fit"].get("correction_gains_disagree").is_none());
+    let verdict = a["verdict"].as_str().unwrap();
+    assert!(!verdict.contains("gains unequal"), "{verdict}");
+
+    let fit = &d["model_fit"];
+    assert_eq!(fit["fits"], false, "{fit}");
+    assert_eq!(fit["correction_gains_disagree"], true, "{fit}");
+    let verdict = d["verdict"].as_str().unwrap();
+    assert!(
+        verdict.contains("does not fit")
+            && verdict.contains("gains unequal")
+            && verdict.contains("peak ×1.25")
+            && verdict.contains("p = 0.001")
+            && verdict.contains("build a table for its chassis"),
+        "{verdict}"
+    );
+    // The clause is a verdict on the car model, not another estimate.
+    assert_eq!(a["interval_mm"], d["interval_mm"]);
+    assert_eq!(
+        a["p_clearance_above_threshold"],
+        d["p_clearance_above_threshold"]
+    );
+
+    // shimmyd on the same profile says the same.
+    let journal = e2e_common::replay_profile(
+        disagree.to_str().unwrap(),
+        &log,
+        &dir.path().join("shimmyd"),
+        None,
+    );
+    let est = journal.estimate.expect("shimmyd estimated");
+    let misfit = est["misfit"].as_str().unwrap_or_default();
+    assert!(misfit.contains("gains unequal"), "{est}");
+}

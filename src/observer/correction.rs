@@ -71,7 +71,9 @@ pub struct Correction {
     /// test of their differences, with the fit's covariance ([`gains_agree_p`]). A small value
     /// says the car model differs from the table's by more than a signal gain (a scrub
     /// radius, a brake disc variation, another column), which the correction cannot make
-    /// honest. `None` where fewer than two gains were fitted (and in files written before it).
+    /// honest: below [`GAINS_DISAGREE_P`] every estimate with this correction says the model
+    /// does not fit (src/observer/fit.rs). `None` where fewer than two gains were fitted (and
+    /// in files written before it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub gains_agree_p: Option<f64>,
 }

@@ -29,8 +29,10 @@ pub struct ModelFit {
     /// Wilson–Hilferty normal score of `deviance` under χ²(`dof`).
     pub z: f64,
     /// False when `z` exceeds the configured limit with at least [`MIN_DOF`] degrees of
-    /// freedom, when the estimate's sensor is noisier than its table assumes, or when the
-    /// steering shakes at wheel order while braking ([`Self::wheel_order_shake`]).
+    /// freedom, when the estimate's sensor is noisier than its table assumes, when the
+    /// steering shakes at wheel order while braking ([`Self::wheel_order_shake`]), or when the
+    /// car model's correction says the car model is not the table's
+    /// ([`Self::correction_gains_disagree`]).
     pub fits: bool,
     /// The estimate's steering sensor measured noisier at standstill than its table assumes
     /// (src/observer/noise_floor.rs): the table does not describe this vehicle's sensor.
@@ -44,6 +46,12 @@ pub struct ModelFit {
     /// variation) the model does not have.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub wheel_order_shake: bool,
+    /// The car model's correction the estimate applied found its features' gains unequal
+    /// (`gains_agree_p` below `GAINS_DISAGREE_P`, src/observer/correction.rs): the car model
+    /// passes the wheels' motion on to the steering otherwise than the table's model, by more
+    /// than a gain, so no vehicle of it fits the table, whatever its own events' scatter.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub correction_gains_disagree: bool,
     /// ln of the events' marginal likelihood under the table's model (clearance prior and
     /// nuisances integrated out), with the evidence power: what a fleet-level fit of a
     /// per-car-model correction adds up over vehicles (`shimmy fleet-gain`).
@@ -67,6 +75,7 @@ impl ModelFit {
             sensor_noisier: false,
             wheel_order_share: None,
             wheel_order_shake: false,
+            correction_gains_disagree: false,
             ln_evidence: None,
             ln_evidence_untempered: None,
         }
@@ -89,6 +98,15 @@ impl ModelFit {
         self.wheel_order_share = share;
         self.wheel_order_shake = shake;
         if shake {
+            self.fits = false;
+        }
+    }
+
+    /// Records whether the car model's correction found its features' gains unequal: the
+    /// model then does not fit, whatever the deviance says.
+    pub fn set_correction_gains_disagree(&mut self, disagree: bool) {
+        self.correction_gains_disagree = disagree;
+        if disagree {
             self.fits = false;
         }
     }

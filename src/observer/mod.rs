@@ -794,20 +794,27 @@ impl Observer {
         let wo_cfg = &self.cfg.features.wheel_order;
         let wheel_order = self.wheel_order_share(active_signal);
         let judder = wheel_order.filter(|&m| wo_cfg.share_max > 0.0 && m > wo_cfg.share_max);
+        // A correction whose features' gains disagree says the car model is not the table's.
+        let disagreeing = self
+            .active_estimator()
+            .and_then(|e| e.correction())
+            .and_then(|c| Some((c, c.gains_agree_p?)))
+            .filter(|&(_, p)| p < correction::GAINS_DISAGREE_P);
         let Some(f) = self.active_estimator().and_then(|e| {
             let (dev, dof) = e.fit()?;
             let mut f = fit::ModelFit::new(dev, dof, z_max);
             f.set_sensor_noisier(noisy.is_some());
             f.set_wheel_order(wheel_order, judder.is_some());
+            f.set_correction_gains_disagree(disagreeing.is_some());
             f.ln_evidence = e.ln_evidence().map(|l| l[0]);
             f.ln_evidence_untempered = e.ln_evidence().map(|l| l[1]);
             Some(f)
         }) else {
             return (None, None);
         };
-        let why = match (noisy, judder) {
+        let why = match (noisy, judder, disagreeing) {
             _ if f.fits => None,
-            (Some(n), _) => Some(format!(
+            (Some(n), _, _) => Some(format!(
                 "its steering {} sensor is noisier than the response table assumes ({:.3} {u} \
                  RMS measured at standstill over {} stops, {:.3} {u} assumed), so the interval \
                  is not to be trusted; rebuild the table for this sensor (`shimmy calibrate{} \
@@ -828,7 +835,7 @@ impl Observer {
                 n.measured_rms,
                 u = n.signal.unit()
             )),
-            (None, Some(share)) => Some(format!(
+            (None, Some(share), _) => Some(format!(
                 "its steering shakes at the wheels' rotation while braking, beyond what it does \
                      before the brake ({:.0} % of the braking band's power in that line, median \
                      over {} events; limit {:.0} %): a brake-torque variation (disc thickness \
@@ -839,7 +846,26 @@ impl Observer {
                 self.wheel_order[wheel_order_slot(active_signal)].len(),
                 100.0 * wo_cfg.share_max
             )),
-            (None, None) => Some(format!(
+            (None, None, Some((c, p))) => Some(format!(
+                "its car model's correction (fitted by `shimmy fleet-fit` on {} vehicles at new \
+                 joints) finds the {} features' gains unequal (braking RMS ×{:.2}, peak ×{:.2}, \
+                 cruise ×{:.2}; p = {p:.3} that they are one gain, limit {}): this car model \
+                 passes the wheels' motion on to the steering otherwise than the response \
+                 table's model, by more than a gain (a scrub radius, brake discs, another \
+                 steering column), so the interval is not to be trusted; build a table for its \
+                 chassis (docs/ADDING_A_CAR.md, \"Chassis\")",
+                c.vehicles,
+                if active_signal.is_angle() {
+                    "steering-angle"
+                } else {
+                    "torque"
+                },
+                c.gain[0],
+                c.gain[1],
+                c.gain[2],
+                correction::GAINS_DISAGREE_P
+            )),
+            (None, None, None) => Some(format!(
                 "its events scatter more about every clearance's prediction than the response \
                  table's vehicles do (goodness of fit z = {:.1} over {:.0} features, limit \
                  {z_max:.1}), so the interval is not to be trusted; see docs/ACCURACY.md",
