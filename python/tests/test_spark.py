@@ -196,3 +196,37 @@ def test_fleet_fit_job_writes_what_the_cli_writes(spark, new_joints, shimmy_bin,
             spark, manifest + [dict(vehicle="x", profile="vw_mqb", log=str(bad), seq="100")],
             str(tmp_path / "mixed.toml"),
         )
+
+
+def test_fit_correction_from_the_command_line(new_joints, shimmy_bin, tmp_path):
+    """`python -m shimmy_monitor.spark --manifest M --fit-correction OUT` (its own Spark, a
+    process of its own so the shared session lives on): the CLI's file, its summary printed; a
+    manifest of two car models exits 1 with the reason."""
+    import csv
+    import subprocess
+
+    from conftest import run_cli
+
+    manifest = tmp_path / "new_joints.csv"
+    with open(manifest, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["vehicle", "profile", "log"])
+        w.writeheader()
+        for r in new_joints["manifest"]:
+            w.writerow({k: r[k] for k in ("vehicle", "profile", "log")})
+    cli_out = tmp_path / "cli.toml"
+    run_cli(shimmy_bin, "fleet-fit", "--profile", "toyota_rav4", "-o", cli_out,
+            *[str(v) for v in new_joints["vehicles"]])
+    out = tmp_path / "job.toml"
+    cmd = [sys.executable, "-m", "shimmy_monitor.spark", "--master", "local[1]",
+           "--manifest", str(manifest), "--fit-correction", str(out)]
+    p = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert out.read_bytes() == cli_out.read_bytes()
+    assert "angle: rms ×" in p.stdout, p.stdout
+    assert f"5 vehicle(s), 0 skipped; written to {out}" in p.stdout, p.stdout
+
+    with open(manifest, "a", newline="") as f:
+        csv.writer(f).writerow(["x", "vw_mqb", str(new_joints["vehicles"][1] / "drive.log")])
+    p = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 1
+    assert "one car model" in p.stderr, p.stderr[-3000:]
