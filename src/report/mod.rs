@@ -122,6 +122,23 @@ mod tests {
         );
         let plain = super::verdict(&open, Some(&est(Some(0.2), 0.15, 0.3, true)), 12, &cfg);
         assert_eq!(plain.condition, "replace", "{plain:?}");
+        assert!(!plain.headline.contains("does not fit"), "{plain:?}");
+        // Any other misfit keeps the alert and asks for the play to be confirmed by hand.
+        let unfit = Estimate {
+            misfit: Some(
+                "its car model's correction finds the torque features' gains unequal".into(),
+            ),
+            ..est(Some(0.2), 0.15, 0.3, true)
+        };
+        let u = super::verdict(&open, Some(&unfit), 12, &cfg);
+        assert_eq!(u.condition, "replace", "{u:?}");
+        assert!(
+            u.headline.contains("Replace")
+                && u.headline
+                    .contains("does not fit this vehicle: its car model's correction")
+                && u.headline.contains("confirm the joints' play by hand"),
+            "{u:?}"
+        );
         // An estimate read with a chassis variant's table keeps its condition and says which
         // geometry it was read for and what to check.
         let variant = Estimate {
@@ -313,6 +330,17 @@ fn verdict(open: &[Alert], est: Option<&Estimate>, events: usize, cfg: &AlertsSe
                  The braking shake the alert rests on is not the joints' alone, so the clearance \
                  estimate is not to be trusted until the discs are fixed. (The alert: {})",
                 headline.trim_end_matches('.')
+            ),
+        ),
+        // Any other misfit: the alert stands, and the mechanic confirms the play by hand.
+        Some(Estimate {
+            misfit: Some(why), ..
+        }) if has(Kind::Clearance) => (
+            condition,
+            format!(
+                "{headline} But the model does not fit this vehicle: {}. The clearance \
+                 estimate is uncertain; confirm the joints' play by hand before replacing them.",
+                why.trim_end_matches('.')
             ),
         ),
         _ => (condition, headline),
