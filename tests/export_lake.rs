@@ -772,20 +772,6 @@ fn rav4_torque_correction(spread_ln: f64) -> String {
     )
 }
 
-/// A copy of the toyota_rav4 profile in `dir/name`, its tables the shipped ones (absolute
-/// paths), naming `correction.toml` with `correction` as its content.
-fn rav4_with_correction(dir: &Path, name: &str, correction: &str) -> PathBuf {
-    let dst = e2e_common::profile_copy("toyota_rav4", dir, name);
-    let profile = std::fs::read_to_string(dst.join("profile.toml")).unwrap();
-    std::fs::write(
-        dst.join("profile.toml"),
-        format!("correction = \"correction.toml\"\n{profile}"),
-    )
-    .unwrap();
-    std::fs::write(dst.join("correction.toml"), correction).unwrap();
-    dst
-}
-
 /// The run's hash as docs/FLEET.md defines it: sha256 over the parts, each followed by a zero
 /// byte, the torque table's, the correction's and the chassis variants' only when the run has them.
 fn documented_run_sha256(profile: &Profile, vehicle: &str, logs: &[&Path]) -> String {
@@ -880,7 +866,12 @@ fn a_profile_with_a_correction_stamps_its_hash_and_is_a_run_of_its_own() {
     assert_eq!(runs(&lake, &plain), [plain_run.clone()]);
 
     // The same profile with a correction of its torque table.
-    let copy = rav4_with_correction(dir.path(), "rav4_corrected", &rav4_torque_correction(0.0));
+    let copy = e2e_common::profile_copy_with_correction(
+        "toyota_rav4",
+        dir.path(),
+        "rav4_corrected",
+        &rav4_torque_correction(0.0),
+    );
     let corrected = Profile::load_dir(&copy).unwrap();
     let corr_file = copy.join("correction.toml");
     assert_eq!(

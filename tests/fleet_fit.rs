@@ -276,23 +276,16 @@ fn a_correction_whose_gains_disagree_says_the_model_does_not_fit() {
         .unwrap()
         .fingerprint;
     let with_p = |name: &str, p: f64| {
-        let copy = e2e_common::profile_copy("toyota_rav4", dir.path(), name);
-        let prof = std::fs::read_to_string(copy.join("profile.toml")).unwrap();
-        std::fs::write(
-            copy.join("profile.toml"),
-            format!("correction = \"correction.toml\"\n{prof}"),
-        )
-        .unwrap();
-        std::fs::write(
-            copy.join("correction.toml"),
-            format!(
+        e2e_common::profile_copy_with_correction(
+            "toyota_rav4",
+            dir.path(),
+            name,
+            &format!(
                 "[torque_nm]\ngain = [1.0, 1.25, 1.0]\ngain_se_ln = [0.05, 0.05, 0.07]\n\
                  spread_ln = 0.1\nvehicles = 40\nevents = 400\nclearance_mm = 0.03\n\
                  table_fingerprint = {fp:?}\ngains_agree_p = {p:?}\n"
             ),
         )
-        .unwrap();
-        copy
     };
     let agree = with_p("rav4_agree", 0.5);
     let disagree = with_p("rav4_disagree", 0.001);

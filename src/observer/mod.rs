@@ -794,24 +794,21 @@ impl Observer {
         let wo_cfg = &self.cfg.features.wheel_order;
         let wheel_order = self.wheel_order_share(active_signal);
         let judder = wheel_order.filter(|&m| wo_cfg.share_max > 0.0 && m > wo_cfg.share_max);
-        // A correction whose features' gains disagree says the car model is not the table's.
-        let disagreeing = self
-            .active_estimator()
-            .and_then(|e| e.correction())
-            .and_then(|c| Some((c, c.gains_agree_p?)))
-            .filter(|&(_, p)| p < correction::GAINS_DISAGREE_P);
-        let Some(f) = self.active_estimator().and_then(|e| {
-            let (dev, dof) = e.fit()?;
-            let mut f = fit::ModelFit::new(dev, dof, z_max);
-            f.set_sensor_noisier(noisy.is_some());
-            f.set_wheel_order(wheel_order, judder.is_some());
-            f.set_correction_gains_disagree(disagreeing.is_some());
-            f.ln_evidence = e.ln_evidence().map(|l| l[0]);
-            f.ln_evidence_untempered = e.ln_evidence().map(|l| l[1]);
-            Some(f)
-        }) else {
+        let Some((e, (dev, dof))) = self.active_estimator().and_then(|e| Some((e, e.fit()?)))
+        else {
             return (None, None);
         };
+        // A correction whose features' gains disagree says the car model is not the table's.
+        let disagreeing = e
+            .correction()
+            .and_then(|c| Some((c, c.gains_agree_p?)))
+            .filter(|&(_, p)| p < correction::GAINS_DISAGREE_P);
+        let mut f = fit::ModelFit::new(dev, dof, z_max);
+        f.set_sensor_noisier(noisy.is_some());
+        f.set_wheel_order(wheel_order, judder.is_some());
+        f.set_correction_gains_disagree(disagreeing.is_some());
+        f.ln_evidence = e.ln_evidence().map(|l| l[0]);
+        f.ln_evidence_untempered = e.ln_evidence().map(|l| l[1]);
         let why = match (noisy, judder, disagreeing) {
             _ if f.fits => None,
             (Some(n), _, _) => Some(format!(

@@ -557,3 +557,22 @@ pub fn profile_copy(profile: &str, dir: &Path, name: &str) -> PathBuf {
     std::fs::write(dst.join("profile.toml"), rewritten).unwrap();
     dst
 }
+
+/// [`profile_copy`] of `profile` in `dir/name` that names `correction.toml` (a top-level key),
+/// with `correction` as that file's content.
+pub fn profile_copy_with_correction(
+    profile: &str,
+    dir: &Path,
+    name: &str,
+    correction: &str,
+) -> PathBuf {
+    let dst = profile_copy(profile, dir, name);
+    let text = std::fs::read_to_string(dst.join("profile.toml")).unwrap();
+    std::fs::write(
+        dst.join("profile.toml"),
+        format!("correction = \"correction.toml\"\n{text}"),
+    )
+    .unwrap();
+    std::fs::write(dst.join("correction.toml"), correction).unwrap();
+    dst
+}
