@@ -1,7 +1,8 @@
 //! `shimmy estimate` keeps shimmyd's alert lifecycle: an alert raised after one braking event
 //! stays standing while later events fall between the clear and the raise thresholds
 //! (hysteresis), and the alerts `shimmy estimate` reports at the end of a log are the ones
-//! `shimmyd --replay` leaves open in its journal.
+//! `shimmyd --replay` leaves open in its journal. The clearance alert waits for its
+//! confirmation count in both.
 //!
 //! The demo fixture's three events have steering-wheel amplitudes of about 0.17, 0.24 and
 //! 0.12 deg. With a one-event shimmy window over every speed, a raise threshold of 0.2 deg and
@@ -109,4 +110,84 @@ fn estimate_text_names_each_standing_alert_with_its_summary() {
                 && l.contains("braking events")),
         "{text}"
     );
+}
+
+/// P(c > 0.1 mm) after each braking event, from the estimate records of shimmyd's journal in
+/// `dir/journal`.
+fn probabilities_per_event(dir: &std::path::Path) -> Vec<f64> {
+    let mut r = shimmy::journal::Reader::open(&dir.join("journal")).unwrap();
+    (&mut r)
+        .map(|e| e.unwrap().rec)
+        .filter(|r| r["type"] == "estimate")
+        .map(|r| r["estimate"]["p_above"].as_f64().unwrap())
+        .collect()
+}
+
+/// The clearance alert is raised only once P(c > 0.1 mm) has held at or above the raise
+/// probability over `clearance_confirm` braking events in a row, in `shimmy estimate` as in
+/// shimmyd, and `alert_counts` counts the raises. The demo's worn car (0.2 mm) starts below
+/// 0.7 and crosses it with its second event, so the count decides whether and when it is
+/// raised.
+#[test]
+fn the_clearance_alert_waits_for_its_confirmation_as_in_shimmyd() {
+    let dir = tempfile::tempdir().unwrap();
+    let raise = 0.7;
+    let mut outcomes = Vec::new();
+    for confirm in 1..=3usize {
+        let settings = dir.path().join(format!("observer{confirm}.toml"));
+        std::fs::write(
+            &settings,
+            format!("[alerts]\nclearance_probability = {raise}\nclearance_confirm = {confirm}\n"),
+        )
+        .unwrap();
+        let run = dir.path().join(format!("run{confirm}"));
+        let j = replay_reference(&demo(), &run, Some(&settings));
+        let p = probabilities_per_event(&run);
+        assert_eq!(p.len(), 3, "{p:?}");
+        // The premise: below the raise probability after the first event, above it after the
+        // other two.
+        assert!(p[0] < raise && p[1] >= raise && p[2] >= raise, "{p:?}");
+        // The first event after which the last `confirm` probabilities were all above it.
+        let expected =
+            (confirm - 1..p.len()).find(|&i| p[i + 1 - confirm..=i].iter().all(|&x| x >= raise));
+
+        let e = estimate_reference(&demo(), Some(&settings));
+        let clearance: Vec<&Value> = e["alerts"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|a| a["kind"] == "clearance")
+            .collect();
+        match expected {
+            Some(i) => {
+                assert_eq!(clearance.len(), 1, "confirm {confirm}: {e:#}");
+                assert_eq!(
+                    clearance[0]["t_raised"], e["events"][i]["t_end"],
+                    "confirm {confirm}"
+                );
+            }
+            None => assert!(clearance.is_empty(), "confirm {confirm}: {clearance:#?}"),
+        }
+        assert_eq!(
+            e["alert_counts"]["clearance_raised"],
+            u32::from(expected.is_some()),
+            "confirm {confirm}"
+        );
+        let daemon: Vec<&str> = j
+            .alerts
+            .iter()
+            .filter(|(_, k)| k == "clearance")
+            .map(|(t, _)| t.as_str())
+            .collect();
+        // Raised once, then updated by every later event.
+        let want: Vec<&str> = match expected {
+            Some(i) => std::iter::once("raised")
+                .chain(std::iter::repeat_n("updated", p.len() - 1 - i))
+                .collect(),
+            None => Vec::new(),
+        };
+        assert_eq!(daemon, want, "confirm {confirm}: {}", j.describe());
+        outcomes.push(expected);
+    }
+    assert_eq!(outcomes, [Some(1), Some(2), None]);
 }

@@ -32,6 +32,11 @@ fn the_shipped_settings_pass_and_broken_ones_name_the_key() {
             "alerts.clearance_probability: must be a probability",
         ),
         (
+            "clearance_confirm = 2",
+            "clearance_confirm = 0",
+            "alerts.clearance_confirm: must be 1..=64 braking events (got 0)",
+        ),
+        (
             "max_speed_kmh = 120.0",
             "max_speed_kmh = 15.0",
             "events.min_speed_kmh (20) must be below events.max_speed_kmh (15)",

@@ -376,6 +376,9 @@ pub struct VehicleResult {
     pub detectable: bool,
     pub below_mm: Option<f64>,
     pub clearance_alert: bool,
+    /// How many times the clearance alert was raised over the drive (more than 1, or 1 with no
+    /// alert standing at the end: an alert that came and went).
+    pub clearance_alerts_raised: u32,
     /// Posterior P(c > the clearance threshold) at the end of the drive.
     pub p_clearance_above_threshold: Option<f64>,
     /// Posterior probability that the wheels' phase difference stayed the same (phase
@@ -810,6 +813,7 @@ fn result(
         detectable: r.detectable,
         below_mm: r.below_mm,
         clearance_alert: r.alerts.iter().any(|a| a.kind == Kind::Clearance),
+        clearance_alerts_raised: r.alert_counts.clearance_raised,
         p_clearance_above_threshold: r.p_clearance_above_threshold,
         p_wheel_phase_fixed: r.p_wheel_phase_fixed,
         model_fit: r.model_fit,
@@ -865,6 +869,9 @@ pub struct Scores {
     pub not_fitting: (usize, usize),
     /// Of the vehicles whose interval misses the truth: said "does not fit" / all of them.
     pub misses_flagged: (usize, usize),
+    /// Vehicles whose clearance alert came and went (raised more often than it stands at the
+    /// end: raised and cleared, or raised again after clearing) / all vehicles.
+    pub clearance_alert_churn: (usize, usize),
 }
 
 /// The scores of a fleet; `shimmy_confirm` is the alert rule's confirmation count.
@@ -908,6 +915,7 @@ pub fn scores(v: &[VehicleResult], shimmy_confirm: usize) -> Scores {
             inside(r) || (!r.detectable && r.below_mm.is_some_and(|b| b >= r.clearance_true_mm))
         })
     });
+    let churn = count(&|r| Some(r.clearance_alerts_raised > u32::from(r.clearance_alert)));
     let judged = |r: &VehicleResult| r.events_55 >= shimmy_confirm;
     let shimmy_agree = count(&|r| match r.true_sw_55_deg {
         Some(a) if a > 0.25 && judged(r) => Some(r.shimmy_alert),
@@ -941,6 +949,7 @@ pub fn scores(v: &[VehicleResult], shimmy_confirm: usize) -> Scores {
         shimmy_too_few_events,
         not_fitting,
         misses_flagged,
+        clearance_alert_churn: churn,
     }
 }
 
@@ -1137,6 +1146,10 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
         "model does not fit (goodness-of-fit check): {}; of the intervals that miss: {}",
         frac(s.not_fitting),
         frac(s.misses_flagged)
+    );
+    println!(
+        "clearance alert came and went (raised, later cleared or raised again): {}",
+        frac(s.clearance_alert_churn)
     );
     println!(
         "shimmy_55kmh agrees with truth (>0.25 or <0.15 deg): {}",
@@ -1515,6 +1528,7 @@ mod tests {
             detectable: true,
             below_mm: None,
             clearance_alert: true,
+            clearance_alerts_raised: 1,
             p_clearance_above_threshold: Some(0.99),
             p_wheel_phase_fixed: None,
             model_fit: None,
@@ -1559,6 +1573,7 @@ mod tests {
             detectable: true,
             below_mm: None,
             clearance_alert: alert,
+            clearance_alerts_raised: u32::from(alert),
             p_clearance_above_threshold: None,
             p_wheel_phase_fixed: None,
             model_fit: None,
@@ -1586,5 +1601,16 @@ mod tests {
         assert_eq!(s.torque_tables.get("scrub"), Some(&2));
         assert_eq!(s.torque_tables.get("nominal"), Some(&1));
         assert_eq!(s.torque_tables.len(), 2);
+        assert_eq!(
+            s.clearance_alert_churn,
+            (0, 4),
+            "one raise each, all standing"
+        );
+
+        // An alert raised and cleared, and one raised twice that stands: both came and went.
+        let mut fleet = fleet;
+        fleet[2].clearance_alerts_raised = 1;
+        fleet[3].clearance_alerts_raised = 2;
+        assert_eq!(scores(&fleet, 2).clearance_alert_churn, (2, 4));
     }
 }

@@ -11,8 +11,9 @@
 //!   shimmy amplitude above `shimmy_deg` (0.2°). It clears only when at most
 //!   `shimmy_clear_max` of them exceed the lower `shimmy_clear_deg`.
 //! * `clearance`: the observer's posterior gives P(c > `clearance_mm`) ≥
-//!   `clearance_probability` (one noisy event cannot do this; the credible interval must). It
-//!   clears when that probability falls below `clearance_clear_probability`.
+//!   `clearance_probability` (one noisy event cannot do this; the credible interval must) after
+//!   each of the last `clearance_confirm` events that added to the estimate. It clears when that
+//!   probability falls below `clearance_clear_probability`.
 //!
 //! De-duplication: while a condition persists there is one open alert of its kind, with a
 //! stable id; every new piece of evidence produces an `updated` transition of that alert, not a
@@ -137,6 +138,37 @@ pub struct AlertBook {
     pub next_id: u64,
     /// The last events in the shimmy speed window (bounded by the configured window).
     pub shimmy_window: VecDeque<EventEvidence>,
+    /// Clearance rule: how many estimates in a row, each with more braking events behind it
+    /// than the one before, have had P(c > clearance_mm) at or above the raise threshold.
+    pub clearance_streak: usize,
+    /// The events behind the last estimate the streak counted (an event the estimator left
+    /// out brings no new evidence and does not count again).
+    pub clearance_streak_events: u32,
+    /// Alerts raised and cleared since the book began, per kind.
+    pub counts: AlertCounts,
+}
+
+/// Alerts raised and cleared since the alert book began, per kind. An alert that is raised
+/// again after it cleared (a condition near its threshold) shows as more than one raise.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct AlertCounts {
+    pub shimmy_55kmh_raised: u32,
+    pub shimmy_55kmh_cleared: u32,
+    pub clearance_raised: u32,
+    pub clearance_cleared: u32,
+}
+
+impl AlertCounts {
+    fn count(&mut self, kind: Kind, raised: bool) {
+        let n = match (kind, raised) {
+            (Kind::Shimmy55, true) => &mut self.shimmy_55kmh_raised,
+            (Kind::Shimmy55, false) => &mut self.shimmy_55kmh_cleared,
+            (Kind::Clearance, true) => &mut self.clearance_raised,
+            (Kind::Clearance, false) => &mut self.clearance_cleared,
+        };
+        *n += 1;
+    }
 }
 
 /// Maintenance guidance of the source study's conclusions, for an alert of `kind` at odometer
@@ -204,8 +236,11 @@ impl AlertBook {
     /// Returns the cleared alerts, for the caller to report as `cleared` transitions.
     pub fn clear_all(&mut self, t: Option<f64>, reason: &str) -> Vec<Alert> {
         self.shimmy_window.clear();
+        self.clearance_streak = 0;
+        self.clearance_streak_events = 0;
         let mut cleared: Vec<Alert> = self.open.drain(..).collect();
         for a in &mut cleared {
+            self.counts.count(a.kind, false);
             if let Some(t) = t {
                 a.t_updated = t;
             }
@@ -269,10 +304,19 @@ impl AlertBook {
                 // why (the report then sends the mechanic to inspect by hand and names the table
                 // to build).
                 let (raise, clear) = if e.sensor_noisier {
+                    self.clearance_streak = 0;
                     (false, true)
                 } else {
+                    if p < cfg.clearance_probability {
+                        self.clearance_streak = 0;
+                    } else if e.events_used > self.clearance_streak_events
+                        || self.clearance_streak == 0
+                    {
+                        self.clearance_streak += 1;
+                    }
+                    self.clearance_streak_events = e.events_used;
                     (
-                        p >= cfg.clearance_probability,
+                        self.clearance_streak >= cfg.clearance_confirm.max(1),
                         p < cfg.clearance_clear_probability,
                     )
                 };
@@ -335,11 +379,13 @@ impl AlertBook {
                     evidence,
                 };
                 self.open.push(a.clone());
+                self.counts.count(kind, true);
                 Some(Transition::Raised(a))
             }
             None => None,
             Some(i) if clear => {
                 let mut a = self.open.remove(i);
+                self.counts.count(kind, false);
                 a.t_updated = ev.t_end;
                 a.summary = summary;
                 a.evidence = evidence;
@@ -454,7 +500,11 @@ mod tests {
 
     #[test]
     fn clearance_follows_probability_with_hysteresis_and_carries_evidence() {
-        let cfg = AlertsSection::default();
+        // Raised on the first estimate above the threshold (the confirmation has its own test).
+        let cfg = AlertsSection {
+            clearance_confirm: 1,
+            ..AlertsSection::default()
+        };
         let mut b = AlertBook::default();
         let est = |p: f64| estimate(p, false);
         // Just below the raise probability: nothing.
@@ -488,8 +538,63 @@ mod tests {
     }
 
     #[test]
+    fn clearance_confirm_waits_for_the_probability_to_hold_over_new_events() {
+        let cfg = AlertsSection {
+            clearance_confirm: 3,
+            ..AlertsSection::default()
+        };
+        let mut b = AlertBook::default();
+        let est = |p: f64, n: u32| Estimate {
+            events_used: n,
+            ..estimate(p, false)
+        };
+        // Above the raise probability after events 2 and 3, below after 4: a flap, no alert.
+        assert!(b
+            .on_event(&cfg, &ev(0.0, 80.0, 0.1), Some(&est(0.75, 2)))
+            .is_empty());
+        assert!(b
+            .on_event(&cfg, &ev(1.0, 80.0, 0.1), Some(&est(0.72, 3)))
+            .is_empty());
+        assert!(b
+            .on_event(&cfg, &ev(2.0, 80.0, 0.1), Some(&est(0.6, 4)))
+            .is_empty());
+        // Above again: the count starts over. An event the estimator left out (the same
+        // events behind the estimate) confirms nothing.
+        assert!(b
+            .on_event(&cfg, &ev(3.0, 80.0, 0.1), Some(&est(0.8, 5)))
+            .is_empty());
+        assert!(b
+            .on_event(&cfg, &ev(4.0, 80.0, 0.1), Some(&est(0.8, 5)))
+            .is_empty());
+        assert!(b
+            .on_event(&cfg, &ev(5.0, 80.0, 0.1), Some(&est(0.85, 6)))
+            .is_empty());
+        let t = b.on_event(&cfg, &ev(6.0, 80.0, 0.1), Some(&est(0.9, 7)));
+        assert_eq!(kinds(&t), [("raised", Kind::Clearance)]);
+        // Clearing is not delayed: below the clear probability once clears it.
+        let t = b.on_event(&cfg, &ev(7.0, 80.0, 0.1), Some(&est(0.4, 8)));
+        assert_eq!(kinds(&t), [("cleared", Kind::Clearance)]);
+        assert_eq!(
+            (b.counts.clearance_raised, b.counts.clearance_cleared),
+            (1, 1)
+        );
+        // With 1 the first estimate above the threshold raises it.
+        let mut b = AlertBook::default();
+        let once = AlertsSection {
+            clearance_confirm: 1,
+            ..AlertsSection::default()
+        };
+        let t = b.on_event(&once, &ev(0.0, 80.0, 0.1), Some(&est(0.75, 2)));
+        assert_eq!(kinds(&t), [("raised", Kind::Clearance)]);
+    }
+
+    #[test]
     fn a_sensor_noisier_than_its_table_raises_no_clearance_alert_and_clears_an_open_one() {
-        let cfg = AlertsSection::default();
+        // Raised on the first estimate above the threshold (the confirmation has its own test).
+        let cfg = AlertsSection {
+            clearance_confirm: 1,
+            ..AlertsSection::default()
+        };
         let mut b = AlertBook::default();
         let est = estimate;
         // Certain, but from a sensor the table does not describe: nothing.

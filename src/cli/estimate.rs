@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 
-use crate::alerts::Alert;
+use crate::alerts::{Alert, AlertCounts};
 use crate::model::VehicleParams;
 use crate::observer::table::{vehicle_hash, ResponseTable};
 use crate::observer::{ObserverConfig, Report};
@@ -182,6 +182,9 @@ pub struct Estimation {
     /// The alerts open at the end of the logs (raised after some event and not cleared since),
     /// decided by the same rules and lifecycle as shimmyd's ([`crate::alerts::AlertBook`]).
     pub alerts: Vec<Alert>,
+    /// Alerts raised and cleared over the logs, per kind: more raises than standing alerts
+    /// means an alert that came and went.
+    pub alert_counts: AlertCounts,
     /// The vehicle's baseline, when one was given ([`estimate_files_with`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub baseline: Option<BaselineReport>,
@@ -257,6 +260,7 @@ pub fn estimate_files_with(
     let out = Estimation {
         report: monitor.stage().observer().report(),
         alerts: monitor.standing().to_vec(),
+        alert_counts: monitor.book().counts,
         baseline: base_use.map(|u| BaselineReport {
             clearance_mm: baseline.map_or(f64::NAN, |b| b.clearance_mm),
             angle_events: u.angle_events,

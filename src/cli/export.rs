@@ -230,6 +230,7 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
     let estimation = Estimation {
         report: pipe.monitor.stage().observer().report(),
         alerts: pipe.monitor.standing().to_vec(),
+        alert_counts: pipe.monitor.book().counts,
         baseline: None,
     };
     Ok(ExportSummary {

@@ -23,6 +23,12 @@ pub struct AlertConfig {
     pub clearance_probability: f64,
     /// ... clear when it falls below this (hysteresis).
     pub clearance_clear_probability: f64,
+    /// Raise only when P(clearance > clearance_mm) has been at least `clearance_probability`
+    /// after each of the last `clearance_confirm` braking events that added to the estimate
+    /// (1: on the first such event). A probability near the threshold can cross it with one
+    /// event and fall back with the next; 2 or more keeps most such alerts from coming and
+    /// going (docs/ACCURACY.md, "Confirming the clearance alert").
+    pub clearance_confirm: usize,
     /// Steering-wheel shimmy amplitude that raises the shimmy alert (deg), article §4: 0.2°.
     #[serde(alias = "shimmy_amplitude_deg")]
     pub shimmy_deg: f64,
@@ -47,6 +53,7 @@ impl Default for AlertConfig {
             clearance_mm: 0.1,
             clearance_probability: 0.7,
             clearance_clear_probability: 0.5,
+            clearance_confirm: 2,
             shimmy_deg: 0.2,
             shimmy_speed_min_kmh: 50.0,
             shimmy_speed_max_kmh: 60.0,

@@ -87,6 +87,12 @@ impl ObserverConfig {
                 a.clearance_probability
             );
         }
+        if a.clearance_confirm == 0 || a.clearance_confirm > 64 {
+            bail!(
+                "alerts.clearance_confirm: must be 1..=64 braking events (got {})",
+                a.clearance_confirm
+            );
+        }
         let f = &self.features;
         positive(&format!("{pre}features.crest_factor"), f.crest_factor)?;
         if !(f.sensor.quant_step_deg.is_finite() && f.sensor.quant_step_deg >= 0.0) {

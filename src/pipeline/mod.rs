@@ -369,8 +369,9 @@ mod tests {
         }
     }
 
-    /// The clearance alert is raised at P >= clearance_probability (0.7), stands while P is
-    /// between clearance_clear_probability (0.5) and 0.7, and clears below 0.5.
+    /// The clearance alert is raised at P >= clearance_probability (0.7) (here after one
+    /// estimate: `clearance_confirm` 1), stands while P is between clearance_clear_probability
+    /// (0.5) and 0.7, and clears below 0.5.
     #[test]
     fn the_clearance_alert_stands_inside_the_hysteresis_band_and_clears_below_it() {
         let stage = Scripted {
@@ -378,7 +379,11 @@ mod tests {
             done: 0,
             odometer_km: 0.0,
         };
-        let mut m = Monitor::new(stage, AlertsSection::default());
+        let rules = AlertsSection {
+            clearance_confirm: 1,
+            ..AlertsSection::default()
+        };
+        let mut m = Monitor::new(stage, rules);
         let mut standing = Vec::new();
         let mut t = 0.0;
         for _ in 0..5 {
