@@ -138,8 +138,9 @@ pub struct AlertBook {
     pub next_id: u64,
     /// The last events in the shimmy speed window (bounded by the configured window).
     pub shimmy_window: VecDeque<EventEvidence>,
-    /// Clearance rule: how many estimates in a row, each with more braking events behind it
-    /// than the one before, have had P(c > clearance_mm) at or above the raise threshold.
+    /// Clearance rule: how many estimates in a row, each resting on other braking events than
+    /// the one before (more of them, or another steering signal's estimator taking over), have
+    /// had P(c > clearance_mm) at or above the raise threshold.
     pub clearance_streak: usize,
     /// The events behind the last estimate the streak counted (an event the estimator left
     /// out brings no new evidence and does not count again).
@@ -309,7 +310,7 @@ impl AlertBook {
                 } else {
                     if p < cfg.clearance_probability {
                         self.clearance_streak = 0;
-                    } else if e.events_used > self.clearance_streak_events
+                    } else if e.events_used != self.clearance_streak_events
                         || self.clearance_streak == 0
                     {
                         self.clearance_streak += 1;
@@ -578,6 +579,17 @@ mod tests {
             (b.counts.clearance_raised, b.counts.clearance_cleared),
             (1, 1)
         );
+        // The torque's estimator taking over from the angle's (fewer events behind it) is new
+        // evidence and counts.
+        let mut b = AlertBook::default();
+        assert!(b
+            .on_event(&cfg, &ev(0.0, 80.0, 0.1), Some(&est(0.8, 6)))
+            .is_empty());
+        assert!(b
+            .on_event(&cfg, &ev(1.0, 80.0, 0.1), Some(&est(0.8, 1)))
+            .is_empty());
+        let t = b.on_event(&cfg, &ev(2.0, 80.0, 0.1), Some(&est(0.8, 2)));
+        assert_eq!(kinds(&t), [("raised", Kind::Clearance)]);
         // With 1 the first estimate above the threshold raises it.
         let mut b = AlertBook::default();
         let once = AlertsSection {
