@@ -34,8 +34,8 @@ and the fleets of the Status table's dev rows):
         --table config/vehicles/toyota_rav4/table_torque.json dev97000 dev97500
 
 Needs numpy. Writes DIR/est_SEED.json (the estimate of each log) and caches the likelihoods in
-FLEET.oracle.npz; about 5 min per 40 vehicles on one core, and about 20 min more for the
-Monte Carlo oracle's 2,048 draws (`--mc 0` leaves it out). Beside the estimator's alerts (the
+FLEET.oracle.npz; about 5 min per 40 vehicles on one core, most of it the logs' estimates and
+the Monte Carlo oracle's 2,048 draws (`--mc 0` leaves that oracle out). Beside the estimator's alerts (the
 alert standing at the end of the log, as `firmware-sim fleet` scores) it prints how many of its
 final P(c > 0.1 mm) are >= 0.7, the quantity the oracles decide on.
 """
@@ -121,36 +121,11 @@ class Law:
                     exp[int(name[1:])] = int(pw)
         return exp, dec
 
-    def basis(self, x, decel_g):
-        dn = (decel_g - 0.55) / 0.25
-        return np.array([dn ** d * np.prod([x[i] ** e for i, e in enumerate(exp) if e])
-                         for exp, d in self.terms])
-
     def _at(self, arr, c_mm):
         y = math.log(c_mm)
         i = min(max(bisect.bisect(self.lnc, y) - 1, 0), len(self.lnc) - 2)
         w = min(max((y - self.lnc[i]) / (self.lnc[i + 1] - self.lnc[i]), 0.0), 1.0)
         return (1 - w) * arr[i] + w * arr[i + 1]
-
-    def predict(self, c_mm, v_kmh, b):
-        j = min(max(bisect.bisect(self.v, v_kmh) - 1, 0), len(self.v) - 2)
-        wv = min(max((v_kmh - self.v[j]) / (self.v[j + 1] - self.v[j]), 0.0), 1.0)
-        cf = self._at(self.coef, c_mm)
-        return ((1 - wv) * cf[j] + wv * cf[j + 1]) @ b
-
-    def ln_likelihood(self, c_mm, events, x):
-        """ln p(events | c, coordinates x), the misfit η integrated out."""
-        w = self._at(self.within, c_mm)
-        bt = self._at(self.between, c_mm) + 1e-6 * np.eye(3)
-        wi = np.linalg.inv(w)
-        r = np.array([z - self.predict(c_mm, v, self.basis(x + [u], a)) for v, a, u, z in events])
-        k = len(r)
-        s = wi @ r.sum(0)
-        m = np.linalg.inv(np.linalg.inv(bt) + k * wi)
-        return (-0.5 * np.einsum("ij,jk,ik->", r, wi, r) + 0.5 * s @ m @ s
-                - 0.5 * np.linalg.slogdet(np.eye(3) + k * bt @ wi)[1]
-                - 0.5 * k * np.linalg.slogdet(w)[1])
-
 
     def ln_likelihood_draws(self, c_mm, events, basis):
         """ln p(events | c, draw k) for every draw: `basis[k, e, t]` the law's monomials."""
@@ -173,11 +148,15 @@ class Law:
                 - 0.5 * np.linalg.slogdet(np.eye(3) + k * bt @ wi)[1]
                 - 0.5 * k * np.linalg.slogdet(w)[1])
 
-    def basis_draws(self, draws, events):
-        """The monomials of every draw (10 coordinates and ψ) at every event's deceleration."""
+    def basis_draws(self, draws, events, events_psi=False):
+        """The monomials of every draw (10 coordinates and ψ) at every event's deceleration;
+        with `events_psi` each event's own ψ instead of the draw's."""
         out = np.ones((len(draws), len(events), len(self.terms)))
-        for e, (_, decel_g, _, _) in enumerate(events):
+        for e, (_, decel_g, psi, _) in enumerate(events):
             dn = (decel_g - 0.55) / 0.25
+            if events_psi:
+                draws = draws.copy()
+                draws[:, 10] = psi
             for t, (exp, d) in enumerate(self.terms):
                 col = np.full(len(draws), dn ** d)
                 for i, ex in enumerate(exp):
@@ -234,13 +213,11 @@ def fleet_likelihoods(law, fleet, profile, nominal, draws):
         seed = v["seed"]
         x0 = coords(toml_numbers(os.path.join(fleet, f"vehicle_{seed}.toml")), nominal, law.prior)
         events = vehicle_events(fleet, seed, profile)
-        ll = np.zeros((len(GRID), len(DAMPING_GRID) + 1))
-        for gi, c in enumerate(GRID):
-            for j, xd in enumerate(list(DAMPING_GRID) + [None]):
-                x = list(x0)
-                if xd is not None:
-                    x[1] = xd
-                ll[gi, j] = law.ln_likelihood(c, events, x)
+        # the damping grid's points and the true coordinates, each event's true ψ
+        known = np.array([list(x0) + [0.0]] * (len(DAMPING_GRID) + 1))
+        known[:-1, 1] = DAMPING_GRID
+        basis_known = law.basis_draws(known, events, events_psi=True)
+        ll = np.array([law.ln_likelihood_draws(c, events, basis_known) for c in GRID])
         basis = law.basis_draws(draws, events)
         mc = np.full(len(GRID), np.nan if len(draws) == 0 else 0.0)
         for gi, c in enumerate(GRID if len(draws) else []):
