@@ -152,10 +152,11 @@ class Law:
         """The monomials of every draw (10 coordinates and ψ) at every event's deceleration;
         with `events_psi` each event's own ψ instead of the draw's."""
         out = np.ones((len(draws), len(events), len(self.terms)))
+        if events_psi:
+            draws = draws.copy()
         for e, (_, decel_g, psi, _) in enumerate(events):
             dn = (decel_g - 0.55) / 0.25
             if events_psi:
-                draws = draws.copy()
                 draws[:, 10] = psi
             for t, (exp, d) in enumerate(self.terms):
                 col = np.full(len(draws), dn ** d)
