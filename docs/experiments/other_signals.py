@@ -32,6 +32,7 @@ import io
 import os
 import subprocess
 import sys
+import tomllib
 
 import numpy as np
 
@@ -81,15 +82,9 @@ def vehicle_files(out_dir):
 
 
 def chassis(path):
-    vals = {}
-    for line in open(path):
-        if "=" in line and not line.startswith("#"):
-            k, v = line.split("=", 1)
-            try:
-                vals[k.strip()] = float(v.split("#")[0])
-            except ValueError:
-                pass
-    return vals
+    with open(path, "rb") as f:
+        v = tomllib.load(f)
+    return {**v["vehicle"], **v["steering"]}
 
 
 def model_half(out_dir):
