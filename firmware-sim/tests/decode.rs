@@ -28,7 +28,11 @@ fn write_log(name: &str) -> (PathBuf, FirmwareSim<PointMass>, Vec<Frame>) {
     let mut sim = FirmwareSim::new(&sc, plant, REFERENCE_DBC, RunInfo::default()).unwrap();
     sim.bus_mut().record_values();
     let frames: Vec<Frame> = sim.by_ref().collect();
-    let path = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("fwsim_decode_{name}.log"));
+    // A file of its own per call: two tests write the same scenario's log in parallel.
+    static LOGS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = LOGS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let path =
+        PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("fwsim_decode_{name}_{n}.log"));
     let mut out = Vec::new();
     for f in &frames {
         shimmy::wire::candump::write_frame(&mut out, f).unwrap();

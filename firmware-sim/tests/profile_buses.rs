@@ -149,8 +149,12 @@ fn drive(p: Profile) -> Drive {
         .iter()
         .map(|r| ((layout[r.message].0, r.t_ns), r.sample))
         .collect();
+    // A file of its own per drive: the tests run in parallel, and two of them drive the same
+    // profile (one writing its log while the other reads its own would read a torn file).
+    static DRIVES: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = DRIVES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let log =
-        PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("profile_bus_{}.log", p.name));
+        PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("profile_bus_{}_{n}.log", p.name));
     let mut out = Vec::new();
     for f in &frames {
         shimmy::wire::candump::write_frame(&mut out, f).unwrap();
