@@ -22,17 +22,20 @@ fn workspace() -> PathBuf {
 
 /// Simulate a bundled scenario (with the faults scenario's bad checksums and drops, so those
 /// frames are in the comparison too) and write it as a candump log.
-fn write_log(name: &str) -> (PathBuf, FirmwareSim<PointMass>, Vec<Frame>) {
+fn write_log(name: &str) -> (tempfile::TempPath, FirmwareSim<PointMass>, Vec<Frame>) {
     let sc = Scenario::load(&workspace().join(format!("config/scenarios/{name}.toml"))).unwrap();
     let plant = PointMass::new(sc.drive.start_speed_kmh / 3.6, sc.step_s, 0.004, 6.5);
     let mut sim = FirmwareSim::new(&sc, plant, REFERENCE_DBC, RunInfo::default()).unwrap();
     sim.bus_mut().record_values();
     let frames: Vec<Frame> = sim.by_ref().collect();
-    // A file of its own per call: two tests write the same scenario's log in parallel.
-    static LOGS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-    let n = LOGS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let path =
-        PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("fwsim_decode_{name}_{n}.log"));
+    // A file of its own per call, removed with it: two tests write the same scenario's log in
+    // parallel (threads or, under a runner like nextest, processes).
+    let path = tempfile::Builder::new()
+        .prefix(&format!("fwsim_decode_{name}_"))
+        .suffix(".log")
+        .tempfile_in(env!("CARGO_TARGET_TMPDIR"))
+        .unwrap()
+        .into_temp_path();
     let mut out = Vec::new();
     for f in &frames {
         shimmy::wire::candump::write_frame(&mut out, f).unwrap();

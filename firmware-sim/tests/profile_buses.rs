@@ -123,7 +123,7 @@ struct Drive {
     /// (ID, extended, length, period ms) of every emulated message.
     layout: Vec<(u32, bool, usize, f64)>,
     truth: GroundTruth,
-    log: PathBuf,
+    log: tempfile::TempPath,
     start_unix_s: f64,
 }
 
@@ -149,12 +149,15 @@ fn drive(p: Profile) -> Drive {
         .iter()
         .map(|r| ((layout[r.message].0, r.t_ns), r.sample))
         .collect();
-    // A file of its own per drive: the tests run in parallel, and two of them drive the same
-    // profile (one writing its log while the other reads its own would read a torn file).
-    static DRIVES: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-    let n = DRIVES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let log =
-        PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("profile_bus_{}_{n}.log", p.name));
+    // A file of its own per drive, removed with it: two tests drive the same profile in
+    // parallel (threads or, under a runner like nextest, processes), and one writing its log
+    // while the other reads its own would read a torn file.
+    let log = tempfile::Builder::new()
+        .prefix(&format!("profile_bus_{}_", p.name))
+        .suffix(".log")
+        .tempfile_in(env!("CARGO_TARGET_TMPDIR"))
+        .unwrap()
+        .into_temp_path();
     let mut out = Vec::new();
     for f in &frames {
         shimmy::wire::candump::write_frame(&mut out, f).unwrap();
@@ -417,7 +420,7 @@ fn end_to_end(name: &str) -> Option<Drive> {
         Some(&p.dbc_path),
         None,
         ObserverConfig::default(),
-        std::slice::from_ref(&d.log),
+        &[d.log.to_path_buf()],
     )
     .unwrap_or_else(|e| panic!("{name}: {e:#}"));
     assert_eq!(
