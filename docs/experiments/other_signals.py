@@ -36,15 +36,10 @@ import tomllib
 
 import numpy as np
 
+from column_torque import bandpass  # the features' 3-25 Hz band, by FFT
+
 SHIMMY = "target/release/shimmy"
 I_Z = 2000.0  # MODEL.md §1: the vehicle yaw inertia the model leaves out
-
-
-def bandpass(x, fs, lo=3.0, hi=25.0):
-    spec = np.fft.rfft(x - x.mean())
-    f = np.fft.rfftfreq(len(x), 1 / fs)
-    spec[(f < lo) | (f > hi)] = 0
-    return np.fft.irfft(spec, len(x))
 
 
 def integrate_band(x, fs, lo=3.0, hi=25.0):
