@@ -72,3 +72,65 @@ fn a_variation_outside_its_range_is_refused() {
     let e = p.validate().unwrap_err().to_string();
     assert!(e.contains("braking.torque_variation_rel"), "{e}");
 }
+
+#[test]
+fn a_prior_with_uneven_discs_draws_them_per_vehicle_and_leaves_the_other_draws_alone() {
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+    use shimmy::observer::simulate::{perturb, NuisanceRanges};
+
+    let mut nominal = VehicleParams::default();
+    nominal.column.enabled = true;
+    let even = NuisanceRanges::default();
+    let discs = NuisanceRanges {
+        brake_torque_variation_rel: Some((0.01, 0.05)),
+        ..even
+    };
+    let (mut eps, mut phase) = (Vec::new(), Vec::new());
+    for seed in 0..200u64 {
+        let mut a = ChaCha8Rng::seed_from_u64(seed);
+        let mut b = a.clone();
+        let q = perturb(&nominal, &even, &mut a);
+        let d = perturb(&nominal, &discs, &mut b);
+        // Everything else is drawn as without the discs, and the caller's generator is where
+        // it was.
+        assert_eq!(q.steering, d.steering);
+        assert_eq!(q.excitation, d.excitation);
+        assert_eq!(q.column, d.column);
+        assert_eq!(a.random::<u64>(), b.random::<u64>());
+        assert_eq!(q.braking.torque_variation_rel, [0.0; 2]);
+        d.validate().unwrap();
+        for i in 0..2 {
+            let e = d.braking.torque_variation_rel[i];
+            assert!((0.01..=0.05).contains(&e), "{e}");
+            eps.push(e);
+            phase.push(d.braking.torque_variation_phase_deg[i]);
+        }
+        // The two discs are drawn independently.
+        assert_ne!(
+            d.braking.torque_variation_phase_deg[0],
+            d.braking.torque_variation_phase_deg[1]
+        );
+    }
+    // The draws cover the ranges.
+    let span = |v: &[f64]| {
+        (
+            v.iter().cloned().fold(f64::INFINITY, f64::min),
+            v.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
+        )
+    };
+    let (lo, hi) = span(&eps);
+    assert!(lo < 0.014 && hi > 0.046, "{lo} {hi}");
+    let (lo, hi) = span(&phase);
+    assert!(
+        lo >= 0.0 && lo < 20.0 && hi < 360.0 && hi > 340.0,
+        "{lo} {hi}"
+    );
+    // Written in a table's prior only when drawn: tables without it stay byte for byte.
+    assert!(!serde_json::to_string(&even)
+        .unwrap()
+        .contains("brake_torque_variation_rel"));
+    let back: NuisanceRanges =
+        serde_json::from_str(&serde_json::to_string(&discs).unwrap()).unwrap();
+    assert_eq!(back, discs);
+}

@@ -192,9 +192,9 @@ fn rand_tag() -> u128 {
 }
 
 /// A chassis variant's torque table is checked against the variant's chassis (the profile's
-/// with the variant's scrub radius or kingpin damping), not the profile's own; the nominal
-/// table is not the variant's, and a variant whose scrub radius or damping is not its table's
-/// is refused, as are a variant that changes nothing, priors that leave the profile's own
+/// with the variant's scrub radius or kingpin damping, and the prior with its brake discs), not
+/// the profile's own; the nominal table is not the variant's, and a variant whose scrub radius,
+/// damping or discs are not its table's is refused, as are a variant that changes nothing, priors that leave the profile's own
 /// chassis nothing and a variant without the nominal table.
 #[test]
 fn chassis_variants_are_checked_against_their_own_chassis() {
@@ -207,7 +207,8 @@ fn chassis_variants_are_checked_against_their_own_chassis() {
         [
             "scrub radius 10 mm",
             "kingpin damping x1.2",
-            "kingpin damping x0.8"
+            "kingpin damping x0.8",
+            "uneven brake discs"
         ]
     );
     let a = &alts[0];
@@ -222,6 +223,21 @@ fn chassis_variants_are_checked_against_their_own_chassis() {
     }
     // The damping variants are the car model's own, nothing to inspect.
     assert!(alts[1].inspect.is_none() && alts[2].inspect.is_none());
+    // The uneven discs' table drew its vehicles' discs, and sends the mechanic to them.
+    assert_eq!(
+        alts[3].table.prior.brake_torque_variation_rel,
+        Some((0.0, 0.05))
+    );
+    assert!(alts[3].inspect.as_deref().unwrap().contains("brake discs"));
+    let even = profile_copy("shimmy_reference_eps", |t| {
+        t.replace("brake_torque_variation_rel = [0.0, 0.05]\n", "")
+    });
+    let ep = Profile::load_dir(&even).unwrap();
+    let e = format!("{:#}", ep.load_torque_alternatives(&nominal).unwrap_err());
+    assert!(
+        e.contains("chassis variant `uneven brake discs`") && e.contains("nuisance prior"),
+        "{e}"
+    );
 
     // Each damping table is checked against its own scale.
     let swapped = profile_copy("shimmy_reference_eps", |t| {
@@ -238,16 +254,42 @@ fn chassis_variants_are_checked_against_their_own_chassis() {
     assert!(e.contains("changes nothing"), "{e}");
 
     let wrong = profile_copy("shimmy_reference_eps", |t| {
-        t.replace("scrub_radius_mm = 10.0", "scrub_radius_mm = 5.0")
+        t.replacen("scrub_radius_mm = 10.0", "scrub_radius_mm = 5.0", 1)
     });
     let wp = Profile::load_dir(&wrong).unwrap();
     let e = format!("{:#}", wp.load_torque_alternatives(&nominal).unwrap_err());
     assert!(e.contains("chassis variant `scrub radius 10 mm`"), "{e}");
 
+    // A variant of cars with uneven brake discs is read only with a table whose vehicles had
+    // them drawn, and its range is checked.
+    let discs = profile_copy("shimmy_reference_eps", |t| {
+        t.replacen(
+            "scrub_radius_mm = 10.0",
+            "scrub_radius_mm = 10.0\nbrake_torque_variation_rel = [0.0, 0.05]",
+            1,
+        )
+    });
+    let dp = Profile::load_dir(&discs).unwrap();
+    let e = format!("{:#}", dp.load_torque_alternatives(&nominal).unwrap_err());
+    assert!(
+        e.contains("chassis variant `scrub radius 10 mm`") && e.contains("nuisance prior"),
+        "{e}"
+    );
+    let inverted = profile_copy("shimmy_reference_eps", |t| {
+        t.replacen(
+            "scrub_radius_mm = 10.0",
+            "scrub_radius_mm = 10.0\nbrake_torque_variation_rel = [0.05, 0.01]",
+            1,
+        )
+    });
+    let e = format!("{:#}", Profile::load_dir(&inverted).unwrap_err());
+    assert!(e.contains("brake_torque_variation_rel"), "{e}");
+
     let greedy = profile_copy("shimmy_reference_eps", |t| {
-        t.replace(
+        t.replacen(
             "scrub_radius_mm = 10.0",
             "scrub_radius_mm = 10.0\nprior_probability = 1.0",
+            1,
         )
     });
     let e = format!("{:#}", Profile::load_dir(&greedy).unwrap_err());

@@ -2,10 +2,10 @@
 //! column on the reference EPS bus, some built with a 10 mm kingpin scrub radius (MODEL.md §14)
 //! that the profile's own chassis does not have, and `shimmy estimate`'s chain reads each log
 //! with every torque table of profile `shimmy_reference_eps` (its own and its
-//! `[[chassis.variants]]` ones: a 10 mm scrub radius, a kingpin damping ×1.2 and ×0.8). A car
-//! with the scrub radius must be read with that variant's table, a car damped 20 % less than
-//! the model (beyond the prior's ±10 %) with the ×0.8 table, a car without either with the
-//! nominal one, and the report must say which and why.
+//! `[[chassis.variants]]` ones: a 10 mm scrub radius, a kingpin damping ×1.2 and ×0.8, uneven
+//! brake discs). A car with the scrub radius must be read with that variant's table, a car
+//! damped 20 % less than the model (beyond the prior's ±10 %) with the ×0.8 table, a car
+//! without either with the nominal one, and the report must say which and why.
 
 mod fleet_common;
 
@@ -45,7 +45,7 @@ const VARIANT: &str = "scrub radius 10 mm";
 /// The table a vehicle was read with, after checking the evidence block around it.
 fn chosen(v: &Value) -> String {
     let tables = v["torque_tables"].as_array().expect("torque_tables");
-    assert_eq!(tables.len(), 4, "{v}");
+    assert_eq!(tables.len(), 5, "{v}");
     let chosen: Vec<&Value> = tables.iter().filter(|t| t["chosen"] == true).collect();
     assert_eq!(chosen.len(), 1, "{v}");
     let weights: f64 = tables.iter().map(|t| t["weight"].as_f64().unwrap()).sum();

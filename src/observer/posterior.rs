@@ -2,7 +2,8 @@
 //!
 //! With a profile's chassis variants (`[[chassis.variants]]`) the torque channel keeps one
 //! estimator per response table, each fed every event. Each table `k` is a model of the car
-//! (MODEL.md §9 and §15 with its own scrub radius or kingpin damping); its posterior weight is
+//! (MODEL.md §9 and §15 with its own scrub radius or kingpin damping, or with uneven brake
+//! discs drawn per table vehicle, §14); its posterior weight is
 //! its prior times the events' tempered marginal likelihood under it, normalised
 //! (`w_k ∝ π_k · p(events | table k)^λ`). The clearance posterior is then
 //!

@@ -54,6 +54,14 @@ pub struct NuisanceRanges {
     /// tables written before it existed: [`HandsPrior::default`]; not written when it is that.
     #[serde(default = "default_hands", skip_serializing_if = "is_default_hands")]
     pub hands: Option<HandsPrior>,
+    /// A brake-torque variation (disc thickness variation, MODEL.md §14) drawn per vehicle:
+    /// each front disc's ε uniform in `(low, high)` (relative to the brake force) and its
+    /// thickest point uniform on the wheel, independently for the two discs. `None` (the
+    /// default, and absent in every table written before it existed): the vehicle's own discs,
+    /// even unless its file says otherwise. A chassis variant's table for cars with uneven
+    /// discs is built with it (`shimmy calibrate --brake-torque-variation-rel`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub brake_torque_variation_rel: Option<(f64, f64)>,
 }
 
 fn is_published_column(c: &Option<ColumnRanges>) -> bool {
@@ -81,6 +89,7 @@ impl NuisanceRanges {
         road_noise_factor: (1.0, 1.0),
         column: None,
         hands: None,
+        brake_torque_variation_rel: None,
     };
 }
 
@@ -92,6 +101,7 @@ impl Default for NuisanceRanges {
             road_noise_factor: (0.7, 1.4),
             column: published_column(),
             hands: default_hands(),
+            brake_torque_variation_rel: None,
         }
     }
 }
@@ -145,6 +155,16 @@ fn check_range(key: &str, lo: f64, hi: f64, min: f64) -> anyhow::Result<()> {
             "{key}: must be [low, high] with {} low <= high (got [{lo}, {hi}])",
             if min > 0.0 { "0 <" } else { "0 <=" }
         );
+    }
+    Ok(())
+}
+
+/// Checks a range of the brake discs' variation ([`NuisanceRanges::brake_torque_variation_rel`]):
+/// 0 <= low <= high <= 0.3 (30 % of the brake force is far beyond a judder a driver tolerates).
+pub fn check_brake_torque_variation(key: &str, (lo, hi): (f64, f64)) -> anyhow::Result<()> {
+    check_range(key, lo, hi, 0.0)?;
+    if hi > 0.3 {
+        bail!("{key}: at most 0.3 of the brake force (got [{lo}, {hi}])");
     }
     Ok(())
 }
@@ -231,6 +251,9 @@ pub struct HandsDraw {
 const HANDS_STREAM: u64 = 13;
 /// Added to the vehicle's stream for the column draw of [`perturb`].
 const COLUMN_STREAM_OFFSET: u64 = 0xC01;
+/// The stream offset of the brake discs' draws (as [`COLUMN_STREAM_OFFSET`]: a vehicle drawn
+/// without them is drawn exactly as before they existed).
+const DISC_STREAM_OFFSET: u64 = 0xD15C;
 
 impl HandsPrior {
     /// Each state's range.
@@ -371,7 +394,8 @@ impl EventShape {
 /// damping (k_s, c_s, k_t, k_g, c_g) scaled by an independent uniform factor in ±rel, and the
 /// unbalance scaled by a log-uniform factor. With the §15 column enabled, also J_sw, k_tb and
 /// c_tb within `r.column` (from a copy of `rng` on another stream, so the draws of a 5-DOF
-/// vehicle and whatever `rng` gives afterwards are the same with or without the column).
+/// vehicle and whatever `rng` gives afterwards are the same with or without the column); with
+/// `r.brake_torque_variation_rel`, the two discs' variation and phase (another stream again).
 pub fn perturb(nominal: &VehicleParams, r: &NuisanceRanges, rng: &mut ChaCha8Rng) -> VehicleParams {
     let mut p = nominal.clone();
     let mut f = |x: &mut f64| *x *= 1.0 + rng.random_range(-1.0..=1.0) * r.stiffness_damping_rel;
@@ -394,6 +418,15 @@ pub fn perturb(nominal: &VehicleParams, r: &NuisanceRanges, rng: &mut ChaCha8Rng
         c.inertia_kgm2 = pick(cr.inertia_kgm2);
         c.torsion_bar_nm_per_rad = pick(cr.torsion_bar_nm_per_rad);
         c.torsion_bar_damping_nms_per_rad = pick(cr.torsion_bar_damping_nms_per_rad);
+    }
+    if let Some((lo, hi)) = r.brake_torque_variation_rel {
+        let mut drng = rng.clone();
+        drng.set_stream(rng.get_stream().wrapping_add(DISC_STREAM_OFFSET));
+        let b = &mut p.braking;
+        for i in 0..2 {
+            b.torque_variation_rel[i] = lo + drng.random::<f64>() * (hi - lo);
+            b.torque_variation_phase_deg[i] = drng.random::<f64>() * 360.0;
+        }
     }
     p
 }

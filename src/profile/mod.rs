@@ -121,6 +121,14 @@ pub struct ChassisVariant {
     /// far too worn or far too tight by the nominal table.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub kingpin_damping_scale: Option<f64>,
+    /// Uneven front brake discs (a disc thickness variation, MODEL.md §14): each disc's
+    /// brake-torque variation ε, relative to the brake force, lies in `[low, high]` and its
+    /// thickest point anywhere on the wheel; the variant's table draws both per table vehicle
+    /// (`shimmy calibrate --brake-torque-variation-rel LOW,HIGH`). Through a scrub radius the
+    /// variation shakes the steering at wheel order while braking whatever the joints, which
+    /// the nominal table reads as wear. Absent: even discs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub brake_torque_variation_rel: Option<[f64; 2]>,
     /// What a workshop should check on a car read with this variant ("the wheels' offset
     /// (non-standard wheels or spacers change the scrub radius)"); absent: nothing, the
     /// variant is a property of the car model, not a fault.
@@ -141,8 +149,20 @@ impl ChassisVariant {
     /// What concerns the profile (unique names, the nominal torque table beside it, the
     /// priors' sum) the profile checks.
     pub fn validate(&self) -> anyhow::Result<()> {
-        if self.scrub_radius_mm.is_none() && self.kingpin_damping_scale.is_none() {
-            bail!("changes nothing: give scrub_radius_mm or kingpin_damping_scale");
+        if self.scrub_radius_mm.is_none()
+            && self.kingpin_damping_scale.is_none()
+            && self.brake_torque_variation_rel.is_none()
+        {
+            bail!(
+                "changes nothing: give scrub_radius_mm, kingpin_damping_scale or \
+                 brake_torque_variation_rel"
+            );
+        }
+        if let Some([lo, hi]) = self.brake_torque_variation_rel {
+            crate::observer::simulate::check_brake_torque_variation(
+                "brake_torque_variation_rel",
+                (lo, hi),
+            )?;
         }
         if let Some(r) = self.scrub_radius_mm {
             if !(r.is_finite() && (0.0..=50.0).contains(&r)) {
@@ -199,6 +219,7 @@ impl From<PriorSection> for NuisanceRanges {
             road_noise_factor: (p.road_noise_factor[0], p.road_noise_factor[1]),
             column: p.column.or(d.column),
             hands: p.hands.or(d.hands),
+            brake_torque_variation_rel: None,
         }
     }
 }
@@ -545,6 +566,15 @@ impl Profile {
         p
     }
 
+    /// The nuisance prior of a variant's table: the profile's, with the variant's brake discs
+    /// drawn per table vehicle where it has uneven ones.
+    pub fn variant_prior(&self, v: &ChassisVariant) -> NuisanceRanges {
+        NuisanceRanges {
+            brake_torque_variation_rel: v.brake_torque_variation_rel.map(|[lo, hi]| (lo, hi)),
+            ..self.prior
+        }
+    }
+
     /// The torque tables of the profile's `[[chassis.variants]]`, by name, each checked as
     /// [`Self::check_torque_table`] checks the nominal one but against its variant's chassis,
     /// to go beside `nominal`, the profile's torque table as [`Self::load_torque_table`] gave
@@ -576,7 +606,7 @@ impl Profile {
                 )
             };
             let mut t = ResponseTable::load(&path).with_context(ctx)?;
-            self.check_torque_table_on(&t, &self.variant_vehicle(v))
+            self.check_torque_table_on(&t, &self.variant_vehicle(v), &self.variant_prior(v))
                 .with_context(ctx)?;
             t.correction = nominal.correction.clone();
             out.push(crate::observer::Alternative {
@@ -626,7 +656,7 @@ impl Profile {
 
     /// Refuses a torque table built for another chassis, prior or torque rate.
     pub fn check_torque_table(&self, t: &ResponseTable) -> anyhow::Result<()> {
-        self.check_torque_table_on(t, &self.vehicle)
+        self.check_torque_table_on(t, &self.vehicle, &self.prior)
     }
 
     /// [`Self::check_torque_table`] against `vehicle` (the profile's, or a variant's).
@@ -634,6 +664,7 @@ impl Profile {
         &self,
         t: &ResponseTable,
         vehicle: &VehicleParams,
+        prior: &NuisanceRanges,
     ) -> anyhow::Result<()> {
         t.check_torque_vehicle(vehicle)?;
         if let Some(ts) = &self.file.sensors.steer_torque {
@@ -645,11 +676,11 @@ impl Profile {
                 );
             }
         }
-        if t.prior != self.prior {
+        if t.prior != *prior {
             bail!(
                 "built with the nuisance prior {:?}, but the profile's is {:?}",
                 t.prior,
-                self.prior
+                prior
             );
         }
         Ok(())
@@ -718,6 +749,9 @@ pub fn check_prior(r: &NuisanceRanges) -> anyhow::Result<()> {
     }
     if let Some(h) = &r.hands {
         h.validate().context("chassis.prior")?;
+    }
+    if let Some(b) = r.brake_torque_variation_rel {
+        crate::observer::simulate::check_brake_torque_variation("brake_torque_variation_rel", b)?;
     }
     Ok(())
 }

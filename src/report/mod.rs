@@ -355,8 +355,9 @@ fn verdict(open: &[Alert], est: Option<&Estimate>, events: usize, cfg: &AlertsSe
                 .map(|c| format!(": check {}", c.trim_end_matches('.')))
                 .unwrap_or_default();
             format!(
-                "{headline} The braking shake fits this car's steering best with a {name} (not \
-                 the car model's own), and the clearance was estimated for it{check}."
+                "{headline} The braking shake fits this car best as the chassis variant \
+                 \"{name}\" (not the car model's own chassis), and the clearance was estimated \
+                 for it{check}."
             )
         }
         None => headline,

@@ -190,6 +190,15 @@ pub struct Args {
     #[arg(long, default_value_t = 0, value_name = "N", conflicts_with_all = ["refit", "per_vehicle"])]
     pub emulate: u32,
 
+    /// Draw each table vehicle's brake discs: each front disc's torque variation ε uniform in
+    /// LOW..HIGH (relative to the brake force; a disc thickness variation, MODEL.md §14) with
+    /// its thickest point anywhere on the wheel. For a `[[chassis.variants]]` table of cars
+    /// with uneven discs (the variant's `brake_torque_variation_rel`, on a chassis with a
+    /// scrub radius: without one the rack feels nothing); a profile's own tables are built on
+    /// even discs. Recorded in the table's prior.
+    #[arg(long, value_delimiter = ',', value_name = "LOW,HIGH", conflicts_with_all = ["exact_vehicle", "refit"])]
+    pub brake_torque_variation_rel: Option<Vec<f64>>,
+
     /// A table for exactly the --vehicle given: no nuisance spread (every drawn vehicle is the
     /// vehicle itself), so only the event-to-event randomness remains. For diagnosis: with
     /// --vehicles 1 --seeds 4 --per-vehicle it is the "oracle" of docs/ACCURACY.md, what the
@@ -488,9 +497,23 @@ fn model_fingerprint(grid: &Grid, cfg: &ObserverConfig) -> anyhow::Result<String
         grid.decel_g,
         grid.shape,
         grid.seed_base,
-        grid.ranges,
+        ranges_fingerprint(&grid.ranges),
         serde_json::to_string(&cfg.events)?
     ))
+}
+
+/// The prior as the fingerprint names it: without brake discs, as it read before they could
+/// be drawn (so earlier work directories and events files still resume).
+fn ranges_fingerprint(r: &NuisanceRanges) -> String {
+    let mut s = format!(
+        "NuisanceRanges {{ stiffness_damping_rel: {:?}, unbalance_factor: {:?}, \
+         road_noise_factor: {:?}, column: {:?}, hands: {:?}",
+        r.stiffness_damping_rel, r.unbalance_factor, r.road_noise_factor, r.column, r.hands
+    );
+    if let Some(b) = r.brake_torque_variation_rel {
+        s += &format!(", brake_torque_variation_rel: {b:?}");
+    }
+    s + " }"
 }
 
 /// [`model_fingerprint`], the vehicles and replicates, and the sensor the events were measured
@@ -777,7 +800,10 @@ fn provenance(grid: &Grid, ranges: &NuisanceRanges) -> String {
         grid.seeds,
         grid.shape,
         grid.seed_base
-    )
+    ) + &match ranges.brake_torque_variation_rel {
+        Some((lo, hi)) => format!(", brake discs' variation {lo}-{hi} of the brake force"),
+        None => String::new(),
+    }
 }
 
 /// Replaces the drawn vehicles of `t` by `grid.emulate` emulated ones
@@ -803,6 +829,21 @@ fn emulate_into(
     )?;
     t.vehicles = grid.emulate;
     t.validate()
+}
+
+/// `--brake-torque-variation-rel`, checked.
+fn brake_variation_arg(args: &Args) -> anyhow::Result<Option<(f64, f64)>> {
+    let Some(v) = &args.brake_torque_variation_rel else {
+        return Ok(None);
+    };
+    let [lo, hi] = v[..] else {
+        anyhow::bail!("--brake-torque-variation-rel takes LOW,HIGH");
+    };
+    crate::observer::simulate::check_brake_torque_variation(
+        "--brake-torque-variation-rel",
+        (lo, hi),
+    )?;
+    Ok(Some((lo, hi)))
 }
 
 /// The build's grid from the command line (checked), with the nuisance prior `ranges` (a
@@ -831,7 +872,10 @@ fn grid_from(args: &Args, ranges: NuisanceRanges) -> anyhow::Result<Grid> {
         ranges: if args.exact_vehicle {
             NuisanceRanges::NONE
         } else {
-            ranges
+            NuisanceRanges {
+                brake_torque_variation_rel: brake_variation_arg(args)?,
+                ..ranges
+            }
         },
         // A torque table's default law adds the column's coordinates and the unbalance squared.
         terms: if args.signal == "torque" && args.terms == DEFAULT_TERMS {
@@ -957,6 +1001,12 @@ fn finish_work(args: &Args, dir: &Path) {
 /// `--profile`: the tables of the profiles named, one set of model runs per chassis and prior.
 fn run_profiles(args: &Args, cfg: &ObserverConfig, threads: usize) -> anyhow::Result<()> {
     let t0 = Instant::now();
+    if args.brake_torque_variation_rel.is_some() {
+        anyhow::bail!(
+            "--brake-torque-variation-rel: a profile's own tables are built on even brake discs; \
+             build a chassis variant's table with --vehicle and --out (docs/ADDING_A_CAR.md)"
+        );
+    }
     let mut profiles = Vec::new();
     if args.profile.iter().any(|p| p == "all") {
         for p in crate::profile::load_all() {
@@ -1229,6 +1279,34 @@ mod tests {
             .contains("step_deg: 0.01"));
         let e = grid(&["--sensor-rate-hz", "40"]).unwrap_err();
         assert!(format!("{e:#}").contains("--sensor-rate-hz"), "{e:#}");
+        // Uneven brake discs: drawn per vehicle and part of the prior and the work directory's
+        // name; without them the fingerprint reads as it did before they could be drawn.
+        assert!(!model_fingerprint(&reference, &cfg)
+            .unwrap()
+            .contains("torque_variation"));
+        let r = NuisanceRanges::default();
+        assert_eq!(
+            ranges_fingerprint(&r),
+            format!("{r:?}").replace(", brake_torque_variation_rel: None", "")
+        );
+        let discs = grid(&["--brake-torque-variation-rel", "0,0.05"]).unwrap();
+        assert_eq!(discs.ranges.brake_torque_variation_rel, Some((0.0, 0.05)));
+        assert!(model_fingerprint(&discs, &cfg)
+            .unwrap()
+            .contains("brake_torque_variation_rel: (0.0, 0.05)"));
+        let drawn = drawn_vehicles(&vehicle_scrub(), &discs);
+        assert!(
+            drawn[0].braking.torque_variation_rel[0] > 0.0,
+            "{:?}",
+            drawn[0].braking
+        );
+        for bad in ["0.05,0.01", "0,0.5", "0.02"] {
+            let e = grid(&["--brake-torque-variation-rel", bad]).unwrap_err();
+            assert!(
+                format!("{e:#}").contains("--brake-torque-variation-rel"),
+                "{bad}: {e:#}"
+            );
+        }
         // The build puts the events through that sensor and says so in the table.
         let vehicle = VehicleParams::default();
         let ev = simulate_table_events(&vehicle, &fine, &cfg, 2).unwrap();
@@ -1241,6 +1319,12 @@ mod tests {
             .iter()
             .zip(&ev_ref)
             .all(|(a, b)| a.seed == b.seed && a.raw.z != b.raw.z));
+    }
+
+    fn vehicle_scrub() -> VehicleParams {
+        let mut v = VehicleParams::default();
+        v.steering.scrub_radius_m = 0.01;
+        v
     }
 
     #[test]
