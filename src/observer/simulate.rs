@@ -8,8 +8,9 @@
 //! of a simulated event and of a measured one are computed by the same code.
 //!
 //! Also here: the nuisance draw of one vehicle ([`perturb`]: unbalance magnitude, ±10 % on the
-//! steering stiffnesses and dampings, and with the MODEL.md §15 column its rim inertia, torsion
-//! bar stiffness and damping; [`perturb_vehicle`] adds the road-noise level; unbalance phase
+//! steering stiffnesses and dampings, with the MODEL.md §15 column its rim inertia, torsion
+//! bar stiffness and damping, and where the prior asks for them the brake discs' variation
+//! (§14); [`perturb_vehicle`] adds the road-noise level; unbalance phase
 //! and road-noise realisation come from each event's seed, MODEL.md §7), and the driver's
 //! hands on the rim drawn per braking event ([`HandsPrior`], [`event_hands`]; docs/COLUMN.md).
 //!
