@@ -45,11 +45,7 @@ fn fleet_read(
         "no torque_variation_phase_deg"
     );
     std::fs::write(&plant, text).unwrap();
-    let mut extra = vec!["--plant".to_string(), plant.display().to_string()];
-    if let Some(t) = torque_table {
-        extra.push("--torque-table".into());
-        extra.push(fleet_common::repo(t).display().to_string());
-    }
+    let extra = fleet_common::plant_args(&plant, torque_table);
     fleet_common::fleet(
         &format!("brake_judder_{name}"),
         "toyota_rav4",

@@ -25,11 +25,7 @@ fn fleet(
         .join(format!("chassis_variants_{name}_plant"));
     std::fs::create_dir_all(&dir).unwrap();
     let plant = fleet_common::column_plant(&dir, scrub_m);
-    let mut extra = vec!["--plant".to_string(), plant.display().to_string()];
-    if let Some(t) = torque_table {
-        extra.push("--torque-table".into());
-        extra.push(fleet_common::repo(t).display().to_string());
-    }
+    let extra = fleet_common::plant_args(&plant, torque_table);
     fleet_common::fleet(
         &format!("chassis_variants_{name}"),
         "shimmy_reference_eps",
@@ -113,11 +109,7 @@ fn a_car_damped_beyond_the_prior_is_read_with_the_damping_variant() {
     let plant = dir.join("plant_damping_080.toml");
     std::fs::write(&plant, low).unwrap();
     let run = |name: &str, torque_table: Option<&str>| {
-        let mut extra = vec!["--plant".to_string(), plant.display().to_string()];
-        if let Some(t) = torque_table {
-            extra.push("--torque-table".into());
-            extra.push(fleet_common::repo(t).display().to_string());
-        }
+        let extra = fleet_common::plant_args(&plant, torque_table);
         fleet_common::fleet(name, "shimmy_reference_eps", 62100, 0.3, 3, &extra)
     };
     let read = run("chassis_variants_damping", None);

@@ -42,6 +42,17 @@ pub fn column_plant(dir: &Path, scrub_m: Option<f64>) -> PathBuf {
     path
 }
 
+/// The fleet's arguments for simulating around `plant` and, where given, reading with the
+/// repository's `torque_table` alone (`--plant FILE [--torque-table FILE]`).
+pub fn plant_args(plant: &Path, torque_table: Option<&str>) -> Vec<String> {
+    let mut args = vec!["--plant".to_string(), plant.display().to_string()];
+    if let Some(t) = torque_table {
+        args.push("--torque-table".into());
+        args.push(repo(t).display().to_string());
+    }
+    args
+}
+
 /// `firmware-sim fleet --profile PROFILE --config config/observer.toml --vehicles N --events
 /// 30 --seed-base SEED --clearance-mm C` in a fresh work directory named `name`, plus `extra`
 /// (where `{column}` stands for [`column_plant`]'s file without a scrub radius); the
