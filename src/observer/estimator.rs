@@ -315,7 +315,10 @@ impl Summary {
 pub struct Estimator {
     cfg: EstimatorConfig,
     /// Method "linear": the continuous marginalisation (then the mixture's `log_p` is empty).
-    linear: Option<super::marginal::LinearPosterior>,
+    /// Boxed: its scratch holds fixed-size term arrays (tens of KB), which would otherwise
+    /// make every move of an estimator, and of the observer holding several, that large on
+    /// the stack.
+    linear: Option<Box<super::marginal::LinearPosterior>>,
     ln_c: Vec<f64>,
     /// Nuisance vehicles M.
     n_m: usize,
@@ -408,7 +411,7 @@ impl Estimator {
             };
             let lp = super::marginal::LinearPosterior::new(table, lm, pos, &lp_cfg)?;
             // The mixture's joint vectors stay empty.
-            (Some(lp), ln_c, 0)
+            (Some(Box::new(lp)), ln_c, 0)
         } else {
             if table.n_vehicles() == 0 {
                 anyhow::bail!(
@@ -532,6 +535,15 @@ impl Estimator {
                 .map(|ic| self.log_p[ic * self.n_m + im].exp())
                 .sum()
         })
+    }
+
+    /// Uses `other`'s per-event scratch instead of its own (method "linear", both;
+    /// [`super::marginal::LinearPosterior::share_scratch`]): for estimators of one vehicle,
+    /// which take their events one after another. The estimates are unchanged.
+    pub fn share_scratch(&mut self, other: &Estimator) {
+        if let (Some(mine), Some(theirs)) = (self.linear.as_mut(), other.linear.as_ref()) {
+            mine.share_scratch(theirs);
+        }
     }
 
     /// Adds one used event: its braking features, speed, deceleration and odometer (m).

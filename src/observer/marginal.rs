@@ -78,9 +78,11 @@
 //! within 10⁻⁷ relative after 1000 (the unit tests below compare them; the RAV4 column fleet's
 //! P(c > 0.1 mm) moves by 10⁻⁸). All of it and the scratch of one
 //! event's terms are allocated in [`LinearPosterior::new`] (the baseline's at its first
-//! event); updates and summaries do not allocate.
+//! event); updates and summaries do not allocate. The scratch (about 150 KB, most of it
+//! fixed-size term arrays) lives only within one update, so the estimators of one vehicle share
+//! one ([`LinearPosterior::share_scratch`]).
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use nalgebra::{Cholesky, Const, Matrix3, SMatrix, SVector, Vector3};
 
@@ -442,7 +444,10 @@ impl StatSet {
     }
 }
 
-/// Per-event scratch at each clearance of an update, allocated once.
+/// Per-event scratch at each clearance of an update, allocated once. Its contents live only
+/// within one [`accumulate`], so the estimators of one vehicle, which take an event one after
+/// another, can share one ([`LinearPosterior::share_scratch`]): it is then as large as the
+/// largest of them needs, and each uses its leading `rows`, `n_quad` and `n_mono + 1` entries.
 struct EventScratch {
     coefs: Vec<Coefs>,
     sigma: Vec<Matrix3<f64>>,
@@ -468,6 +473,22 @@ impl EventScratch {
             basis_mean: Basis::default(),
         }
     }
+
+    /// Grows the scratch to hold at least `rows` clearances, `n_quad` phases and `n_mono`
+    /// monomials.
+    fn reserve(&mut self, rows: usize, n_quad: usize, n_mono: usize) {
+        if self.coefs.len() < rows {
+            self.coefs.resize(rows, Coefs::default());
+            self.sigma.resize(rows, Matrix3::zeros());
+            self.w.resize(rows, None);
+        }
+        if self.split.len() < n_mono + 1 {
+            self.split.resize(n_mono + 1, [0.0; N_FEAT]);
+        }
+        if self.basis_q.len() < n_quad {
+            self.basis_q.resize(n_quad, Basis::default());
+        }
+    }
 }
 
 /// The residual z − a of the observed features (0 where masked).
@@ -477,7 +498,8 @@ fn residual(z: &[f64; N_FEAT], a: &[f64; N_FEAT], mask: &FeatureMask) -> Vector3
 
 /// Adds one event (features `z`, mask, speed position `sp`, deceleration) at the clearance
 /// positions `pos` to the statistics `sv` (grid `gv`, hypothesis "vehicle") and `se` (grid
-/// `ge`, "event"), row i of each for `pos[i]`. No allocation.
+/// `ge`, "event"), row i of each for `pos[i]`, with `n_quad` phases for hypothesis "event".
+/// No allocation.
 #[allow(clippy::too_many_arguments)]
 fn accumulate(
     model: &LinearModel,
@@ -488,6 +510,7 @@ fn accumulate(
     mask: &FeatureMask,
     decel_g: f64,
     (gv, ge): (&Grid, &Grid),
+    n_quad: usize,
     scr: &mut EventScratch,
     sv: &mut StatSet,
     se: &mut StatSet,
@@ -503,26 +526,27 @@ fn accumulate(
     // adds nothing at that clearance.
     let skip = |i: usize, w: &[Option<(Matrix3<f64>, f64)>]| !gv.is_empty() && w[i].is_none();
     let ngv = gv.n_groups;
+    let n_split = gv.n_mono + 1;
     for k in 0..ngv {
         model.basis_into(&gv.rep[k], decel_g, &mut scr.basis);
         for i in 0..rows {
             let Some((w, ld)) = scr.w[i] else { continue };
             // The slopes (the same at every point of the group) and a = α + M·φ.
             let b = model.predict_with(&scr.coefs[i], &scr.basis).b;
-            model.means_by_class(&scr.coefs[i], &scr.basis, &gv.class, &mut scr.split);
-            for col in scr.split.iter_mut() {
+            let split = &mut scr.split[..n_split];
+            model.means_by_class(&scr.coefs[i], &scr.basis, &gv.class, split);
+            for col in split.iter_mut() {
                 for (f, v) in col.iter_mut().enumerate() {
                     if !mask[f] {
                         *v = 0.0;
                     }
                 }
             }
-            let r0 = residual(z, &scr.split[0], mask);
-            sv.add(i * ngv + k, &gv.live, &b, &w, ld, &r0, &scr.split[1..]);
+            let r0 = residual(z, &split[0], mask);
+            sv.add(i * ngv + k, &gv.live, &b, &w, ld, &r0, &split[1..]);
         }
     }
     let nge = ge.n_groups;
-    let n_quad = scr.basis_q.len();
     for (q, x) in ge.points.iter().enumerate() {
         // Δ new in this event: the mean of the prediction over Δ (the law is linear in its
         // terms, so the mean event's terms give it) and its covariance.
@@ -531,7 +555,8 @@ fn accumulate(
             y[PHASE] = u;
             model.basis_into(&y, decel_g, &mut scr.basis_q[k]);
         }
-        Basis::mean_of(&scr.basis_q, &mut scr.basis_mean);
+        let basis_q = &scr.basis_q[..n_quad];
+        Basis::mean_of(basis_q, &mut scr.basis_mean);
         let k = ge.group[q];
         for i in 0..rows {
             if skip(i, &scr.w) {
@@ -540,7 +565,7 @@ fn accumulate(
             let mean = model.predict_with(&scr.coefs[i], &scr.basis_mean);
             let am = Vector3::from(mean.a);
             let mut var = Matrix3::<f64>::zeros();
-            for b in &scr.basis_q {
+            for b in basis_q {
                 let d = Vector3::from(model.mean_with(&scr.coefs[i], b)) - am;
                 var += d * d.transpose();
             }
@@ -634,9 +659,12 @@ pub struct LinearPosterior {
     base_v: StatSet,
     base_e: StatSet,
     has_baseline: bool,
-    /// Scratch of one event's update at every clearance, and of a baseline event's.
-    scratch_event: EventScratch,
+    /// Scratch of one event's update at every clearance (shared with the other estimators of
+    /// the vehicle: [`Self::share_scratch`]), and of a baseline event's; phases of hypothesis
+    /// "event".
+    scratch_event: Arc<Mutex<EventScratch>>,
     scratch_event_base: Option<EventScratch>,
+    n_quad: usize,
     /// Scratch: one factor of A per group, ln p(z | c_g, point) and the deviance per point of
     /// one clearance (and, with a baseline, of the baseline alone).
     fac: Vec<Option<(Factor, f64)>>,
@@ -864,8 +892,9 @@ impl LinearPosterior {
             base_v: StatSet::default(),
             base_e: StatSet::default(),
             has_baseline: false,
-            scratch_event: EventScratch::new(ng, n_quad, grid_v.n_mono),
+            scratch_event: Arc::new(Mutex::new(EventScratch::new(ng, n_quad, grid_v.n_mono))),
             scratch_event_base: None,
+            n_quad,
             fac: vec![None; n_groups],
             scratch: vec![0.0; n_points],
             scratch_dev: vec![0.0; n_points],
@@ -891,6 +920,21 @@ impl LinearPosterior {
             ln_evidence: [f64::NAN; 2],
             ln_jacobian: 0.0,
         })
+    }
+
+    /// Uses `other`'s event scratch from now on instead of its own, grown to fit both (see
+    /// [`EventScratch`]): estimators that take their events one after another, the angle's and
+    /// the torque tables' of one vehicle, need only one. Allocates; updates still do not.
+    pub fn share_scratch(&mut self, other: &LinearPosterior) {
+        if Arc::ptr_eq(&self.scratch_event, &other.scratch_event) {
+            return;
+        }
+        other
+            .scratch_event
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .reserve(self.pos.len(), self.n_quad, self.grid_v.n_mono);
+        self.scratch_event = Arc::clone(&other.scratch_event);
     }
 
     /// Grid points per clearance (both hypotheses).
@@ -922,6 +966,9 @@ impl LinearPosterior {
     pub fn update(&mut self, z: [f64; N_FEAT], mask: &FeatureMask, v0_kmh: f64, decel_g: f64) {
         self.n_obs += mask.iter().filter(|&&m| m).count() as f64;
         let sp = bracket(&self.speed_kmh, v0_kmh);
+        // Nothing panics while the scratch is held, and its contents do not outlive one
+        // update, so a poisoned lock is taken as it is.
+        let mut scr = self.scratch_event.lock().unwrap_or_else(|e| e.into_inner());
         accumulate(
             &self.model,
             self.inflation2,
@@ -931,7 +978,8 @@ impl LinearPosterior {
             mask,
             decel_g,
             (&self.grid_v, &self.grid_e),
-            &mut self.scratch_event,
+            self.n_quad,
+            &mut scr,
             &mut self.stats_v,
             &mut self.stats_e,
         );
@@ -952,11 +1000,7 @@ impl LinearPosterior {
             self.has_baseline = true;
             self.base_v = StatSet::zero(1, &self.grid_v);
             self.base_e = StatSet::zero(1, &self.grid_e);
-            self.scratch_event_base = Some(EventScratch::new(
-                1,
-                self.scratch_event.basis_q.len(),
-                self.grid_v.n_mono,
-            ));
+            self.scratch_event_base = Some(EventScratch::new(1, self.n_quad, self.grid_v.n_mono));
             let n = self.grid_v.len().max(self.grid_e.len());
             self.scratch_base = vec![0.0; n];
             self.scratch_base_dev = vec![0.0; n];
@@ -980,6 +1024,7 @@ impl LinearPosterior {
                 mask,
                 decel_g,
                 (&self.grid_v, &self.grid_e),
+                self.n_quad,
                 scr,
                 &mut self.base_v,
                 &mut self.base_e,
@@ -1428,6 +1473,52 @@ mod tests {
         // The unbalance closed-form: ψ sets its slope, so every point is its own group.
         check("table.json", false, 12, 1e-5);
         check("table.json", true, 12, 1e-5);
+    }
+
+    #[test]
+    fn estimators_sharing_one_scratch_estimate_as_alone() {
+        // The angle's and the torque's laws need scratch of other shapes (monomials, and here
+        // clearance rows): each of three estimators sharing one must read exactly what it reads
+        // with its own, whichever of them made the scratch and in whatever order they update.
+        let (ta, tt) = (table("table.json"), table("table_torque.json"));
+        let (la, lt) = (ta.linear.clone().unwrap(), tt.linear.clone().unwrap());
+        let cfg = EstimatorConfig::default();
+        let make = |t: &ResponseTable, lm: &Arc<LinearModel>, refine: usize| {
+            LinearPosterior::new(t, lm, fine_grid(&t.clearance_mm, refine).1, &cfg).unwrap()
+        };
+        let alone = [make(&ta, &la, 4), make(&tt, &lt, 2), make(&ta, &la, 2)];
+        let mut shared = [make(&ta, &la, 4), make(&tt, &lt, 2), make(&ta, &la, 2)];
+        assert_ne!(alone[0].grid_v.n_mono, alone[1].grid_v.n_mono);
+        assert_ne!(alone[0].pos.len(), alone[2].pos.len());
+        let (first, rest) = shared.split_at_mut(1);
+        rest[0].share_scratch(&first[0]);
+        let (mid, last) = rest.split_at_mut(1);
+        last[0].share_scratch(&mid[0]);
+        assert!(shared
+            .iter()
+            .all(|p| Arc::ptr_eq(&p.scratch_event, &shared[0].scratch_event)));
+        let mut alone = alone;
+        let evs = [
+            events(&ta, 5, 10, 3),
+            events(&tt, 5, 10, 4),
+            events(&ta, 7, 10, 5),
+        ];
+        for k in 0..10 {
+            for j in [2, 0, 1] {
+                let (z, mask, v0, d) = evs[j][k];
+                alone[j].update(z, &mask, v0, d);
+                shared[j].update(z, &mask, v0, d);
+            }
+        }
+        for (a, s) in alone.iter_mut().zip(shared.iter_mut()) {
+            let n = a.pos.len();
+            let (mut pa, mut ps) = (vec![0.0; n], vec![0.0; n]);
+            a.probabilities_into(&mut pa, &vec![0.0; n]);
+            s.probabilities_into(&mut ps, &vec![0.0; n]);
+            assert_eq!(pa, ps);
+            assert_eq!(a.fit(), s.fit());
+            assert!(pa.iter().all(|p| p.is_finite()) && pa.iter().sum::<f64>() > 0.99);
+        }
     }
 
     #[test]

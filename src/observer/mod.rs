@@ -571,6 +571,7 @@ impl Observer {
             used: 0,
             without: 0,
         });
+        self.share_scratch();
         Ok(self)
     }
 
@@ -621,7 +622,23 @@ impl Observer {
             table,
             estimator,
         });
+        self.share_scratch();
         Ok(self)
+    }
+
+    /// Lets the vehicle's estimators (the angle's, the torque's and its alternatives') use
+    /// one per-event scratch ([`Estimator::share_scratch`]): they take an event one after
+    /// another, and each table's estimator would otherwise keep its own copy (about 150 KB).
+    fn share_scratch(&mut self) {
+        let Some(t) = self.torque.as_mut() else {
+            return;
+        };
+        if let Some(angle) = self.estimator.as_ref() {
+            t.estimator.share_scratch(angle);
+        }
+        for a in &mut t.alternatives {
+            a.estimator.share_scratch(&t.estimator);
+        }
     }
 
     /// The chassis variant the estimate is read with ([`Self::with_torque_alternative`]): its
@@ -737,6 +754,7 @@ impl Observer {
                 a.estimator = Estimator::new(&a.table, tcfg.clone())?;
             }
         }
+        self.share_scratch();
         Ok(())
     }
 
