@@ -13,7 +13,10 @@
 //! * `clearance`: the observer's posterior gives P(c > `clearance_mm`) ≥
 //!   `clearance_probability` (one noisy event cannot do this; the credible interval must) after
 //!   each of the last `clearance_confirm` events that added to the estimate. It clears when that
-//!   probability falls below `clearance_clear_probability`.
+//!   probability falls below `clearance_clear_probability`. While the fit check finds the
+//!   steering shaking at the wheels' rotation (uneven brake discs), the pair
+//!   `clearance_wheel_order_probability` / `clearance_wheel_order_clear_probability` applies
+//!   instead; a sensor noisier than its table raises nothing.
 //!
 //! De-duplication: while a condition persists there is one open alert of its kind, with a
 //! stable id; every new piece of evidence produces an `updated` transition of that alert, not a
@@ -299,6 +302,17 @@ impl AlertBook {
         }
         if let Some(e) = est {
             if let Some(p) = e.p_above {
+                // A steering that shakes at the wheels' rotation while braking (uneven brake
+                // discs) puts a shake the joints did not make into the features: its alert is
+                // raised and kept on a stricter pair of probabilities.
+                let (p_raise, p_clear) = if e.wheel_order_shake {
+                    (
+                        cfg.clearance_wheel_order_probability,
+                        cfg.clearance_wheel_order_clear_probability,
+                    )
+                } else {
+                    (cfg.clearance_probability, cfg.clearance_clear_probability)
+                };
                 // A steering sensor measured noisier than its table assumes is a monitor not
                 // set up for this car (src/observer/noise_floor.rs): the estimate reads the extra
                 // noise as clearance, so it raises no alert, and an open one is cleared, saying
@@ -308,7 +322,7 @@ impl AlertBook {
                     self.clearance_streak = 0;
                     (false, true)
                 } else {
-                    if p < cfg.clearance_probability {
+                    if p < p_raise {
                         self.clearance_streak = 0;
                     } else if e.events_used != self.clearance_streak_events
                         || self.clearance_streak == 0
@@ -318,7 +332,7 @@ impl AlertBook {
                     self.clearance_streak_events = e.events_used;
                     (
                         self.clearance_streak >= cfg.clearance_confirm.max(1),
-                        p < cfg.clearance_clear_probability,
+                        p < p_clear,
                     )
                 };
                 let summary = match (e.clearance_mm, e.interval_mm) {
@@ -628,6 +642,60 @@ mod tests {
             b.on_event(&cfg, &ev(3.0 + k as f64, 55.0, 0.3), Some(&est(0.99, true)));
         }
         assert!(b.is_open(Kind::Shimmy55) && !b.is_open(Kind::Clearance));
+    }
+
+    #[test]
+    fn a_steering_shaking_at_wheel_order_is_judged_on_the_stricter_probabilities() {
+        let cfg = AlertsSection::default();
+        assert!(cfg.clearance_wheel_order_probability > cfg.clearance_probability);
+        assert!(cfg.clearance_wheel_order_clear_probability > cfg.clearance_clear_probability);
+        let est = |p: f64, n: u32, shake: bool| Estimate {
+            events_used: n,
+            wheel_order_shake: shake,
+            ..estimate(p, false)
+        };
+        let between = 0.5 * (cfg.clearance_probability + cfg.clearance_wheel_order_probability);
+        // Between the two raise probabilities over three new events: raised without the shake,
+        // not with it.
+        let mut plain = AlertBook::default();
+        let mut shaking = AlertBook::default();
+        for n in 1..=3 {
+            plain.on_event(
+                &cfg,
+                &ev(n as f64, 80.0, 0.1),
+                Some(&est(between, n, false)),
+            );
+            shaking.on_event(&cfg, &ev(n as f64, 80.0, 0.1), Some(&est(between, n, true)));
+        }
+        assert!(plain.is_open(Kind::Clearance));
+        assert!(!shaking.is_open(Kind::Clearance));
+        // Above the stricter one over two new events: raised with the shake too.
+        for n in 4..=5 {
+            shaking.on_event(&cfg, &ev(n as f64, 80.0, 0.1), Some(&est(0.95, n, true)));
+        }
+        assert!(shaking.is_open(Kind::Clearance));
+        // Between the two clear probabilities: kept without the shake, cleared with it.
+        let mid =
+            0.5 * (cfg.clearance_clear_probability + cfg.clearance_wheel_order_clear_probability);
+        plain.on_event(&cfg, &ev(6.0, 80.0, 0.1), Some(&est(mid, 6, false)));
+        let t = shaking.on_event(&cfg, &ev(6.0, 80.0, 0.1), Some(&est(mid, 6, true)));
+        assert!(plain.is_open(Kind::Clearance));
+        assert_eq!(kinds(&t), [("cleared", Kind::Clearance)]);
+        // Set equal to the plain pair, the shake changes nothing.
+        let same = AlertsSection {
+            clearance_wheel_order_probability: cfg.clearance_probability,
+            clearance_wheel_order_clear_probability: cfg.clearance_clear_probability,
+            ..cfg.clone()
+        };
+        let mut b = AlertBook::default();
+        for n in 1..=3 {
+            b.on_event(
+                &same,
+                &ev(n as f64, 80.0, 0.1),
+                Some(&est(between, n, true)),
+            );
+        }
+        assert!(b.is_open(Kind::Clearance));
     }
 
     #[test]

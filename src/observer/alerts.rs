@@ -23,6 +23,14 @@ pub struct AlertConfig {
     pub clearance_probability: f64,
     /// ... clear when it falls below this (hysteresis).
     pub clearance_clear_probability: f64,
+    /// The same pair for a vehicle whose steering shakes at the wheels' rotation while braking
+    /// (the fit check's wheel-order shake, src/observer/wheel_order.rs: uneven brake discs).
+    /// Part of what its posterior reads as clearance may be the discs' shake, so the alert asks
+    /// for more: raised at this probability (at least `clearance_probability`) ...
+    pub clearance_wheel_order_probability: f64,
+    /// ... and cleared below this one. Equal to the two above: such vehicles are judged as
+    /// any other (docs/ACCURACY.md, "The uneven-discs variant").
+    pub clearance_wheel_order_clear_probability: f64,
     /// Raise only when P(clearance > clearance_mm) has been at least `clearance_probability`
     /// after each of the last `clearance_confirm` braking events that added to the estimate
     /// (1: on the first such event). A probability near the threshold can cross it with one
@@ -53,6 +61,8 @@ impl Default for AlertConfig {
             clearance_mm: 0.1,
             clearance_probability: 0.7,
             clearance_clear_probability: 0.5,
+            clearance_wheel_order_probability: 0.85,
+            clearance_wheel_order_clear_probability: 0.7,
             clearance_confirm: 2,
             shimmy_deg: 0.2,
             shimmy_speed_min_kmh: 50.0,

@@ -87,6 +87,34 @@ impl ObserverConfig {
                 a.clearance_probability
             );
         }
+        probability(
+            "alerts.clearance_wheel_order_probability",
+            a.clearance_wheel_order_probability,
+        )?;
+        probability(
+            "alerts.clearance_wheel_order_clear_probability",
+            a.clearance_wheel_order_clear_probability,
+        )?;
+        if a.clearance_wheel_order_probability < a.clearance_probability {
+            bail!(
+                "alerts.clearance_wheel_order_probability ({}) must be at least \
+                 alerts.clearance_probability ({}): it is the stricter threshold",
+                a.clearance_wheel_order_probability,
+                a.clearance_probability
+            );
+        }
+        if a.clearance_wheel_order_clear_probability < a.clearance_clear_probability
+            || a.clearance_wheel_order_clear_probability >= a.clearance_wheel_order_probability
+        {
+            bail!(
+                "alerts.clearance_wheel_order_clear_probability ({}) must be at least \
+                 alerts.clearance_clear_probability ({}) and below \
+                 alerts.clearance_wheel_order_probability ({})",
+                a.clearance_wheel_order_clear_probability,
+                a.clearance_clear_probability,
+                a.clearance_wheel_order_probability
+            );
+        }
         if a.clearance_confirm == 0 || a.clearance_confirm > 64 {
             bail!(
                 "alerts.clearance_confirm: must be 1..=64 braking events (got {})",
