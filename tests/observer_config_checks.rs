@@ -32,6 +32,24 @@ fn the_shipped_settings_pass_and_broken_ones_name_the_key() {
             "alerts.clearance_probability: must be a probability",
         ),
         (
+            "clearance_wheel_order_probability = 0.85",
+            "clearance_wheel_order_probability = 0.6",
+            "alerts.clearance_probability (0.7) must be at most \
+             alerts.clearance_wheel_order_probability (0.6)",
+        ),
+        (
+            "clearance_wheel_order_clear_probability = 0.7",
+            "clearance_wheel_order_clear_probability = 0.9",
+            "alerts.clearance_wheel_order_clear_probability (0.9) must be below \
+             alerts.clearance_wheel_order_probability (0.85)",
+        ),
+        (
+            "clearance_wheel_order_clear_probability = 0.7",
+            "clearance_wheel_order_clear_probability = 0.4",
+            "alerts.clearance_clear_probability (0.5) must be at most \
+             alerts.clearance_wheel_order_clear_probability (0.4)",
+        ),
+        (
             "clearance_confirm = 2",
             "clearance_confirm = 0",
             "alerts.clearance_confirm: must be 1..=64 braking events (got 0)",

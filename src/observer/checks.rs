@@ -75,46 +75,32 @@ impl ObserverConfig {
             );
         }
         positive("alerts.clearance_mm", a.clearance_mm)?;
-        probability("alerts.clearance_probability", a.clearance_probability)?;
-        probability(
-            "alerts.clearance_clear_probability",
-            a.clearance_clear_probability,
-        )?;
-        if a.clearance_clear_probability >= a.clearance_probability {
-            bail!(
-                "alerts.clearance_clear_probability ({}) must be below alerts.clearance_probability ({})",
+        let pairs = [
+            ("alerts.clearance_probability", a.clearance_probability),
+            (
+                "alerts.clearance_clear_probability",
                 a.clearance_clear_probability,
-                a.clearance_probability
-            );
-        }
-        probability(
-            "alerts.clearance_wheel_order_probability",
-            a.clearance_wheel_order_probability,
-        )?;
-        probability(
-            "alerts.clearance_wheel_order_clear_probability",
-            a.clearance_wheel_order_clear_probability,
-        )?;
-        if a.clearance_wheel_order_probability < a.clearance_probability {
-            bail!(
-                "alerts.clearance_wheel_order_probability ({}) must be at least \
-                 alerts.clearance_probability ({}): it is the stricter threshold",
+            ),
+            (
+                "alerts.clearance_wheel_order_probability",
                 a.clearance_wheel_order_probability,
-                a.clearance_probability
-            );
-        }
-        if a.clearance_wheel_order_clear_probability < a.clearance_clear_probability
-            || a.clearance_wheel_order_clear_probability >= a.clearance_wheel_order_probability
-        {
-            bail!(
-                "alerts.clearance_wheel_order_clear_probability ({}) must be at least \
-                 alerts.clearance_clear_probability ({}) and below \
-                 alerts.clearance_wheel_order_probability ({})",
+            ),
+            (
+                "alerts.clearance_wheel_order_clear_probability",
                 a.clearance_wheel_order_clear_probability,
-                a.clearance_clear_probability,
-                a.clearance_wheel_order_probability
-            );
+            ),
+        ];
+        for (key, p) in pairs {
+            probability(key, p)?;
         }
+        let [(raise_k, raise), (clear_k, clear), (wo_raise_k, wo_raise), (wo_clear_k, wo_clear)] =
+            pairs;
+        // Each pair clears below where it raises (hysteresis), and the wheel-order pair is the
+        // stricter one at both ends.
+        ordered(clear_k, clear, raise_k, raise)?;
+        at_most(raise_k, raise, wo_raise_k, wo_raise)?;
+        at_most(clear_k, clear, wo_clear_k, wo_clear)?;
+        ordered(wo_clear_k, wo_clear, wo_raise_k, wo_raise)?;
         if a.clearance_confirm == 0 || a.clearance_confirm > 64 {
             bail!(
                 "alerts.clearance_confirm: must be 1..=64 braking events (got {})",
@@ -158,6 +144,13 @@ fn positive(key: &str, v: f64) -> anyhow::Result<()> {
 fn ordered(lo_key: &str, lo: f64, hi_key: &str, hi: f64) -> anyhow::Result<()> {
     if !(lo < hi) {
         bail!("{lo_key} ({lo}) must be below {hi_key} ({hi})");
+    }
+    Ok(())
+}
+
+fn at_most(lo_key: &str, lo: f64, hi_key: &str, hi: f64) -> anyhow::Result<()> {
+    if lo > hi {
+        bail!("{lo_key} ({lo}) must be at most {hi_key} ({hi})");
     }
     Ok(())
 }
