@@ -448,6 +448,7 @@ impl StatSet {
 /// within one [`accumulate`], so the estimators of one vehicle, which take an event one after
 /// another, can share one ([`LinearPosterior::share_scratch`]): it is then as large as the
 /// largest of them needs, and each uses its leading `rows`, `n_quad` and `n_mono + 1` entries.
+#[derive(Default)]
 struct EventScratch {
     coefs: Vec<Coefs>,
     sigma: Vec<Matrix3<f64>>,
@@ -463,15 +464,9 @@ struct EventScratch {
 
 impl EventScratch {
     fn new(rows: usize, n_quad: usize, n_mono: usize) -> EventScratch {
-        EventScratch {
-            coefs: vec![Coefs::default(); rows],
-            sigma: vec![Matrix3::zeros(); rows],
-            w: vec![None; rows],
-            split: vec![[0.0; N_FEAT]; n_mono + 1],
-            basis: Basis::default(),
-            basis_q: vec![Basis::default(); n_quad],
-            basis_mean: Basis::default(),
-        }
+        let mut s = EventScratch::default();
+        s.reserve(rows, n_quad, n_mono);
+        s
     }
 
     /// Grows the scratch to hold at least `rows` clearances, `n_quad` phases and `n_mono`
