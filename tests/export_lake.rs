@@ -799,14 +799,26 @@ fn documented_run_sha256(profile: &Profile, vehicle: &str, logs: &[&Path]) -> St
     if let Some(c) = &profile.correction_path {
         parts.push(format!("correction:{}", sha256_hex(c)));
     }
-    // Chassis variants beside the torque table: each name and its table's sha256.
-    if profile.torque_table_path.is_some() && !profile.file.chassis.variants.is_empty() {
+    // Chassis variants beside the torque table and the angle table: each name and its tables'
+    // sha256 (an angle table's marked `angle:`).
+    let variants = &profile.file.chassis.variants;
+    let torque_variants =
+        profile.torque_table_path.is_some() && variants.iter().any(|c| c.torque_table.is_some());
+    let angle_variants = profile.table_path.is_some() && variants.iter().any(|c| c.table.is_some());
+    if torque_variants || angle_variants {
         let mut v = Vec::new();
-        for c in &profile.file.chassis.variants {
+        for c in variants {
             v.extend_from_slice(c.name.as_bytes());
             v.push(0);
-            v.extend_from_slice(sha256_hex(&profile.dir.join(&c.torque_table)).as_bytes());
-            v.push(0);
+            if let (true, Some(t)) = (torque_variants, &c.torque_table) {
+                v.extend_from_slice(sha256_hex(&profile.dir.join(t)).as_bytes());
+                v.push(0);
+            }
+            if let (true, Some(t)) = (angle_variants, &c.table) {
+                v.extend_from_slice(b"angle:");
+                v.extend_from_slice(sha256_hex(&profile.dir.join(t)).as_bytes());
+                v.push(0);
+            }
         }
         let v: String = Sha256::digest(&v)
             .iter()

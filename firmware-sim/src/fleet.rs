@@ -406,6 +406,11 @@ pub struct VehicleResult {
     pub torque_table: Option<String>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub torque_tables: Vec<shimmy::observer::TableEvidence>,
+    /// As `torque_table` and `torque_tables`, for the angle tables of chassis variants.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub angle_table: Option<String>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub angle_tables: Vec<shimmy::observer::TableEvidence>,
     pub seconds: f64,
 }
 
@@ -835,6 +840,12 @@ fn result(
             .find(|t| t.chosen)
             .map(|t| t.name.clone()),
         torque_tables: r.torque_tables.clone(),
+        angle_table: r
+            .angle_tables
+            .iter()
+            .find(|t| t.chosen)
+            .map(|t| t.name.clone()),
+        angle_tables: r.angle_tables.clone(),
         seconds: t0.elapsed().as_secs_f64(),
     }
 }
@@ -852,6 +863,10 @@ pub struct Scores {
     /// With torque tables of chassis variants: vehicles read with each table, by name.
     #[serde(skip_serializing_if = "std::collections::BTreeMap::is_empty")]
     pub torque_tables: std::collections::BTreeMap<String, usize>,
+    /// With angle tables of chassis variants: vehicles read with each, by name (the angle's
+    /// choice, whichever signal the estimate came from).
+    #[serde(skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub angle_tables: std::collections::BTreeMap<String, usize>,
     /// Mean |median − c| over vehicles with c ≥ 0.1 mm (target ≤ 0.03 mm on the column fleets; the earlier 0.02 mm is retired, docs/ACCURACY.md).
     pub mae_mm_above_0p1: f64,
     /// Interval contains c / all vehicles (target 0.85–0.95).
@@ -896,6 +911,10 @@ pub fn scores(v: &[VehicleResult], shimmy_confirm: usize) -> Scores {
     for t in v.iter().filter_map(|r| r.torque_table.as_ref()) {
         *torque_tables.entry(t.clone()).or_insert(0) += 1;
     }
+    let mut angle_tables = std::collections::BTreeMap::new();
+    for t in v.iter().filter_map(|r| r.angle_table.as_ref()) {
+        *angle_tables.entry(t.clone()).or_insert(0) += 1;
+    }
     let big: Vec<f64> = v
         .iter()
         .filter(|r| r.clearance_true_mm >= 0.1)
@@ -938,6 +957,7 @@ pub fn scores(v: &[VehicleResult], shimmy_confirm: usize) -> Scores {
         alert_rate_new: new,
         alert_rate_band: band,
         torque_tables,
+        angle_tables,
         mae_mm_above_0p1: if big.is_empty() {
             f64::NAN
         } else {
@@ -1025,10 +1045,24 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
             shimmy::observer::Alternative::names(&torque_alternatives)
         );
     }
+    // Likewise its angle variants with its own angle table.
+    let angle_alternatives = match (&args.table, &setup.profile) {
+        (None, Some(p)) => p.load_angle_alternatives(&table)?,
+        _ => Vec::new(),
+    };
+    if !angle_alternatives.is_empty() {
+        eprintln!(
+            "fleet: angle tables of the profile's chassis variants beside the nominal one: {} \
+             (while an estimate comes from the angle it weighs them by how well its events fit \
+             each)",
+            shimmy::observer::Alternative::names(&angle_alternatives)
+        );
+    }
     let tables = Tables {
         angle: Some(table),
         torque,
         torque_alternatives,
+        angle_alternatives,
     };
     let cfg = match &args.config {
         Some(p) => ObserverConfig::load(p)?,
@@ -1120,15 +1154,17 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
         "clearance alert, 0.07 < c < 0.1 mm (mismatch target <= 25 %): {}",
         frac(s.alert_rate_band)
     );
-    if !s.torque_tables.is_empty() {
-        println!(
-            "most probable torque table: {}",
-            s.torque_tables
-                .iter()
-                .map(|(n, k)| format!("{n} {k}"))
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
+    for (signal, tables) in [("torque", &s.torque_tables), ("angle", &s.angle_tables)] {
+        if !tables.is_empty() {
+            println!(
+                "most probable {signal} table: {}",
+                tables
+                    .iter()
+                    .map(|(n, k)| format!("{n} {k}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
     }
     println!(
         "mean absolute error, c >= 0.1 mm (target <= 0.030 mm): {:.3} mm",
@@ -1542,6 +1578,8 @@ mod tests {
             signals: None,
             torque_table: None,
             torque_tables: Vec::new(),
+            angle_table: None,
+            angle_tables: Vec::new(),
             seconds: 0.0,
         };
         let fleet = [
@@ -1587,6 +1625,8 @@ mod tests {
             signals: None,
             torque_table: table.map(str::to_string),
             torque_tables: Vec::new(),
+            angle_table: None,
+            angle_tables: Vec::new(),
             seconds: 0.0,
         };
         let fleet = [

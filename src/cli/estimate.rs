@@ -89,6 +89,9 @@ pub struct Args {
 
     /// Response table from `shimmy calibrate`; default: the profile's. Without one, events
     /// and the shimmy alert are reported but the clearance is not estimated.
+    /// A profile whose `[[chassis.variants]]` name angle tables (`table`) has those fed
+    /// beside it and weighed as the torque's are (`angle_tables` in the JSON); this option
+    /// replaces them all with the one file.
     #[arg(long, value_name = "FILE")]
     pub table: Option<PathBuf>,
 
@@ -427,10 +430,16 @@ pub fn evaluate(args: &Args) -> anyhow::Result<(Option<Profile>, Estimation, Run
         (None, Some(prof), Some(t)) => prof.load_torque_alternatives(t)?,
         _ => Vec::new(),
     };
+    // Likewise its angle variants with its own angle table.
+    let angle_alternatives = match (&args.table, &profile, &table) {
+        (None, Some(prof), Some(t)) => prof.load_angle_alternatives(t)?,
+        _ => Vec::new(),
+    };
     let tables = crate::pipeline::Tables {
         angle: table,
         torque,
         torque_alternatives,
+        angle_alternatives,
     };
     let (mapping_path, dbc) = match &profile {
         Some(p) => (

@@ -147,7 +147,11 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
         (Some(_), Some(p)) => Some(sha256_file(p)?),
         _ => None,
     };
-    let torque_variants_sha256 = variants_sha256(&profile, &torque_alternatives)?;
+    let angle_alternatives = match &table {
+        Some(t) => profile.load_angle_alternatives(t)?,
+        None => Vec::new(),
+    };
+    let variants_sha256 = variants_sha256(&profile, &torque_alternatives, &angle_alternatives)?;
     // The tables above were loaded with the correction applied (and refused had it been
     // fitted against another table); every estimate depends on it.
     let correction_sha256 = match &profile.correction_path {
@@ -163,7 +167,7 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
         table_sha256,
         torque_table_sha256,
         correction_sha256,
-        torque_variants_sha256,
+        variants_sha256,
         mapping_sha256: sha256_file(&profile.mapping_path)?,
         settings_sha256: sha256_bytes(&settings_json),
     };
@@ -174,6 +178,7 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
             angle: table,
             torque,
             torque_alternatives,
+            angle_alternatives,
         },
         cfg,
         TOOL,
@@ -278,21 +283,31 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// With chassis variants in use: the sha256 of each variant's name and table hash in order,
-/// each followed by a zero byte ([`Inputs::torque_variants_sha256`]); `None` without.
+/// With chassis variants in use: the sha256 of each variant's name and table hashes in order,
+/// each followed by a zero byte ([`Inputs::variants_sha256`]); `None` without.
 fn variants_sha256(
     profile: &Profile,
-    alternatives: &[crate::observer::Alternative],
+    torque: &[crate::observer::Alternative],
+    angle: &[crate::observer::Alternative],
 ) -> anyhow::Result<Option<String>> {
-    if alternatives.is_empty() {
+    if torque.is_empty() && angle.is_empty() {
         return Ok(None);
     }
     let mut parts = Vec::new();
     for v in &profile.file.chassis.variants {
         parts.extend_from_slice(v.name.as_bytes());
         parts.push(0);
-        parts.extend_from_slice(sha256_file(&profile.dir.join(&v.torque_table))?.as_bytes());
-        parts.push(0);
+        if let (false, Some(t)) = (torque.is_empty(), &v.torque_table) {
+            parts.extend_from_slice(sha256_file(&profile.dir.join(t))?.as_bytes());
+            parts.push(0);
+        }
+        // An angle table is a part only where there is one, so that a profile whose variants
+        // have torque tables alone keeps the hash it had before angle variants existed.
+        if let (false, Some(t)) = (angle.is_empty(), &v.table) {
+            parts.extend_from_slice(b"angle:");
+            parts.extend_from_slice(sha256_file(&profile.dir.join(t))?.as_bytes());
+            parts.push(0);
+        }
     }
     Ok(Some(sha256_bytes(&parts)))
 }

@@ -292,6 +292,7 @@ impl FitSetup {
             angle: self.angle.clone(),
             torque: self.torque.clone(),
             torque_alternatives: Vec::new(),
+            angle_alternatives: Vec::new(),
         };
         let b = BaselineLogs {
             logs,

@@ -241,6 +241,21 @@ pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
             crate::observer::Alternative::names(&torque_alternatives)
         );
     }
+    // Likewise its angle variants with its own angle table.
+    let angle_alternatives = match (&table, &cfg.vehicle.table, &cfg.profile) {
+        (Some(t), Some(p), Some(profile)) if is_profiles(profile.table_path.as_deref(), p) => {
+            profile.load_angle_alternatives(t)?
+        }
+        _ => Vec::new(),
+    };
+    if !angle_alternatives.is_empty() {
+        eprintln!(
+            "shimmyd: {} angle table(s) of chassis variants beside the nominal one ({}): the \
+             angle's estimate weighs each by how well the events fit it",
+            angle_alternatives.len(),
+            crate::observer::Alternative::names(&angle_alternatives)
+        );
+    }
     // A baseline is read before the stage takes the tables (they are cloned only for it).
     let baseline = if cfg.vehicle.baseline_logs.is_empty() {
         None
@@ -264,6 +279,7 @@ pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
             angle: table.clone(),
             torque: torque.clone(),
             torque_alternatives: torque_alternatives.clone(),
+            angle_alternatives: angle_alternatives.clone(),
         };
         Some(
             crate::cli::estimate::baseline_of(
@@ -278,6 +294,7 @@ pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
         )
     };
     let mut stage = ObserverStage::new(&cfg.settings, table)?
+        .with_angle_alternatives(angle_alternatives)?
         .with_torque_tables(torque, torque_alternatives)?;
     if let Some(b) = baseline {
         let used = stage.set_baseline(b);

@@ -181,9 +181,10 @@ pub struct Inputs {
     /// sha256 of the profile's correction file (`correction`, src/observer/correction.rs),
     /// when the profile names one: it changes every estimate.
     pub correction_sha256: Option<String>,
-    /// With torque tables of the profile's chassis variants: sha256 of each variant's name and
-    /// table hash in order (`name \0 sha256 \0 ...`); a part of the run's hash only.
-    pub torque_variants_sha256: Option<String>,
+    /// With tables of the profile's chassis variants: sha256 of each variant's name and table
+    /// hashes in order (`name \0 torque-sha256 \0 angle:sha256 \0 ...`, each table where the
+    /// variant has one and the run uses it); a part of the run's hash only.
+    pub variants_sha256: Option<String>,
     /// sha256 of the mapping file and of the monitor's settings as used (their JSON).
     pub mapping_sha256: String,
     pub settings_sha256: String,
@@ -219,7 +220,7 @@ pub fn run_sha256(inputs: &Inputs, log_blake3: &[String]) -> String {
         h.update(c.as_bytes());
         h.update([0]);
     }
-    if let Some(v) = &inputs.torque_variants_sha256 {
+    if let Some(v) = &inputs.variants_sha256 {
         h.update(b"variants:");
         h.update(v.as_bytes());
         h.update([0]);
@@ -510,7 +511,7 @@ mod tests {
             table_sha256: Some("t".repeat(64)),
             torque_table_sha256: Some("q".repeat(64)),
             correction_sha256: None,
-            torque_variants_sha256: None,
+            variants_sha256: None,
             mapping_sha256: "m".repeat(64),
             settings_sha256: "s".repeat(64),
         }
@@ -557,7 +558,7 @@ mod tests {
         assert_ne!(other, corrected);
         assert_ne!(other, plain);
         // Chassis variants are a run of their own too.
-        i.torque_variants_sha256 = Some("v".repeat(64));
+        i.variants_sha256 = Some("v".repeat(64));
         let variants = run_sha256(&i, &logs);
         assert_ne!(variants, other);
     }

@@ -245,6 +245,11 @@ pub struct Report {
     /// one the estimate is read from; absent otherwise.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub torque_tables: Vec<TableEvidence>,
+    /// As [`Self::torque_tables`], for the angle's tables of chassis variants
+    /// ([`Observer::with_angle_alternative`]); the estimate weighs them while it comes from
+    /// the angle.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub angle_tables: Vec<TableEvidence>,
     /// Method "linear", `phase = "either"`: posterior probability that the wheels' unbalance
     /// phase difference stayed the same over the events (src/observer/marginal.rs).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -260,6 +265,30 @@ pub struct Report {
     /// fleet-fit`; src/observer/correction.rs), when there is one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub correction: Option<correction::Correction>,
+}
+
+/// `verdict` with which of a channel's `tables` (its [`TableEvidence`], empty without chassis
+/// variants) the estimate is read mostly with, when that is a variant's or the nominal's
+/// without a clear lead.
+fn read_with(verdict: String, tables: &[TableEvidence], channel: &str) -> String {
+    match tables.iter().find(|e| e.chosen) {
+        Some(e) if e.name != NOMINAL_TABLE => format!(
+            "{verdict}, read mostly with the {channel} table for {} (probability {:.2} among the \
+             profile's {} {channel} tables, by how well the events fit each; the estimate weighs \
+             every table by it)",
+            e.name,
+            e.weight.unwrap_or(f64::NAN),
+            tables.len()
+        ),
+        Some(e) if e.weight.is_some_and(|w| w < MIXED_WEIGHT) => format!(
+            "{verdict}, read mostly with the profile's nominal {channel} table (probability \
+             {:.2} among its {} {channel} tables, by how well the events fit each; the estimate \
+             weighs every table by it)",
+            e.weight.unwrap_or(f64::NAN),
+            tables.len()
+        ),
+        _ => verdict,
+    }
 }
 
 /// One used event's features into `est` (on `table`), placed on the detector's odometer.
@@ -326,6 +355,10 @@ pub struct Observer {
     /// Whether each used event goes into the estimator here (placed on the detector's
     /// odometer), or the caller feeds it ([`Self::new_caller_fed`]).
     feeds_estimator: bool,
+    /// Angle tables of structural alternatives of the chassis
+    /// ([`Self::with_angle_alternative`]), each with its estimator fed every event the angle's
+    /// is; the angle's estimate weighs them as the torque channel weighs its own.
+    angle_alternatives: Vec<TableAlternative>,
     /// The torsion-bar torque channel, with a torque table.
     torque: Option<TorqueChannel>,
     /// The steering sensors' noise measured at standstill ([`noise_floor`]).
@@ -355,7 +388,7 @@ struct TorqueChannel {
     /// radius, say: [`Observer::with_torque_alternative`]), each with its own estimator fed the
     /// same events. The report weighs their posteriors by each table's probability
     /// ([`posterior`]).
-    alternatives: Vec<TorqueAlternative>,
+    alternatives: Vec<TableAlternative>,
     /// Its own extractor: the torque comes at another rate than the angle, and one extractor
     /// would redesign its filter at every switch.
     extractor: Extractor,
@@ -387,13 +420,60 @@ impl Alternative {
     }
 }
 
-/// One structural alternative inside the torque channel, with its estimator.
-struct TorqueAlternative {
+/// One structural alternative of the chassis inside a steering channel (the angle's or the
+/// torque's), with its estimator.
+struct TableAlternative {
     name: String,
     inspect: Option<String>,
     ln_prior: f64,
     table: ResponseTable,
     estimator: Estimator,
+}
+
+impl TableAlternative {
+    /// `alt` with its estimator, to go beside the channel's `nominal` table and its
+    /// `others`: the same sensor, a name of its own and priors that leave the nominal some.
+    fn new(
+        alt: Alternative,
+        nominal: &ResponseTable,
+        others: &[TableAlternative],
+        cfg: EstimatorConfig,
+        channel: &str,
+    ) -> anyhow::Result<TableAlternative> {
+        let Alternative {
+            name,
+            prior,
+            inspect,
+            table,
+        } = alt;
+        if table.sensor != nominal.sensor {
+            anyhow::bail!(
+                "{channel} table alternative `{name}`: built for another {channel} sensor ({:?}) \
+                 than the nominal table ({:?})",
+                table.sensor,
+                nominal.sensor
+            );
+        }
+        if name == NOMINAL_TABLE || others.iter().any(|a| a.name == name) {
+            anyhow::bail!("{channel} table alternative `{name}`: the name is taken");
+        }
+        let sum: f64 = others.iter().map(|a| a.ln_prior.exp()).sum();
+        if !(prior > 0.0 && prior + sum < 1.0) {
+            anyhow::bail!(
+                "{channel} table alternative `{name}`: its prior probability {prior} must be \
+                 above 0, and the alternatives' together ({}) below 1",
+                prior + sum
+            );
+        }
+        let estimator = Estimator::new(&table, cfg)?;
+        Ok(TableAlternative {
+            name,
+            inspect,
+            ln_prior: prior.ln(),
+            table,
+            estimator,
+        })
+    }
 }
 
 /// The name the report gives the torque table of the profile's own chassis when the channel
@@ -410,15 +490,33 @@ impl TorqueChannel {
         self.estimator.events_used() > 0
     }
 
+    /// Its tables: the nominal and the chassis variants'.
+    fn mixture(&self) -> Mixture<'_> {
+        Mixture {
+            nominal: &self.estimator,
+            alternatives: &self.alternatives,
+        }
+    }
+}
+
+/// One steering channel's tables, the nominal and its structural alternatives, each with its
+/// estimator fed the same events: which one fits best, and the posterior weighed over them.
+#[derive(Clone, Copy)]
+struct Mixture<'a> {
+    nominal: &'a Estimator,
+    alternatives: &'a [TableAlternative],
+}
+
+impl<'a> Mixture<'a> {
     /// The estimators, the nominal first, with their names and ln prior probabilities.
-    fn all(&self) -> impl Iterator<Item = (&str, &Estimator, f64)> {
+    fn all(self) -> impl Iterator<Item = (&'a str, &'a Estimator, f64)> {
         let nominal = 1.0
             - self
                 .alternatives
                 .iter()
                 .map(|a| a.ln_prior.exp())
                 .sum::<f64>();
-        std::iter::once((NOMINAL_TABLE, &self.estimator, nominal.ln())).chain(
+        std::iter::once((NOMINAL_TABLE, self.nominal, nominal.ln())).chain(
             self.alternatives
                 .iter()
                 .map(|a| (a.name.as_str(), &a.estimator, a.ln_prior)),
@@ -427,7 +525,7 @@ impl TorqueChannel {
 
     /// Each table's ln posterior weight up to a constant (ln prior + tempered ln evidence),
     /// `None` before the table has a finite evidence.
-    fn ln_weights(&self) -> impl Iterator<Item = Option<f64>> + '_ {
+    fn ln_weights(self) -> impl Iterator<Item = Option<f64>> + 'a {
         self.all().map(|(_, e, ln_prior)| {
             e.ln_evidence()
                 .map(|l| l[0] + ln_prior)
@@ -437,7 +535,7 @@ impl TorqueChannel {
 
     /// Index into [`Self::all`] of the most probable table (the one the report names and the
     /// fit check reads): the highest posterior weight, the nominal while none has one.
-    fn chosen(&self) -> usize {
+    fn chosen(self) -> usize {
         let mut best = (0, f64::NEG_INFINITY);
         for (i, l) in self.ln_weights().enumerate() {
             if let Some(l) = l.filter(|&l| l > best.1) {
@@ -447,16 +545,24 @@ impl TorqueChannel {
         best.0
     }
 
-    fn chosen_estimator(&self) -> &Estimator {
+    fn chosen_estimator(self) -> &'a Estimator {
         match self.chosen() {
-            0 => &self.estimator,
+            0 => self.nominal,
             i => &self.alternatives[i - 1].estimator,
+        }
+    }
+
+    /// The most probable table's alternative, `None` when it is the nominal.
+    fn chosen_alternative(self) -> Option<&'a TableAlternative> {
+        match self.chosen() {
+            0 => None,
+            i => Some(&self.alternatives[i - 1]),
         }
     }
 
     /// Each table's posterior probability (prior times tempered evidence, normalised over the
     /// tables that have an evidence), `None` for a table without one yet.
-    fn weights(&self) -> Vec<Option<f64>> {
+    fn weights(self) -> Vec<Option<f64>> {
         let lw: Vec<Option<f64>> = self.ln_weights().collect();
         let max = lw
             .iter()
@@ -470,8 +576,12 @@ impl TorqueChannel {
     }
 
     /// The clearance posterior over the tables: each table's posterior weighed by its
-    /// posterior probability ([`posterior`]); the nominal's alone while no table has an evidence.
-    fn posterior(&self) -> posterior::Posterior<'_> {
+    /// posterior probability ([`posterior`]); the nominal's alone while no table has an
+    /// evidence, and without alternatives.
+    fn posterior(self) -> posterior::Posterior<'a> {
+        if self.alternatives.is_empty() {
+            return posterior::Posterior::single(self.nominal);
+        }
         posterior::Posterior::mixture(
             self.all()
                 .zip(self.weights())
@@ -482,7 +592,7 @@ impl TorqueChannel {
 
     /// Every table's evidence and its weight (its posterior probability among the tables:
     /// prior times tempered evidence, normalised); empty without alternatives.
-    fn evidence(&self) -> Vec<TableEvidence> {
+    fn evidence(self) -> Vec<TableEvidence> {
         if self.alternatives.is_empty() {
             return Vec::new();
         }
@@ -539,6 +649,7 @@ impl Observer {
             unused: UnusedCounts::default(),
             used_total: 0,
             feeds_estimator: true,
+            angle_alternatives: Vec::new(),
             torque: None,
             noise_floor: noise_floor::NoiseFloor::default(),
             wheel_order: Default::default(),
@@ -584,44 +695,40 @@ impl Observer {
     /// of a nominal table that reads its steady shake as wear. Needs
     /// [`Self::with_torque_table`] first, and a table of the same torque sensor.
     pub fn with_torque_alternative(mut self, alt: Alternative) -> anyhow::Result<Observer> {
-        let Alternative {
-            name,
-            prior,
-            inspect,
-            table,
-        } = alt;
-        let name = name.as_str();
         let cfg = self.torque_estimator_config();
         let Some(ch) = self.torque.as_mut() else {
-            anyhow::bail!("torque table alternative `{name}` without a nominal torque table");
+            anyhow::bail!(
+                "torque table alternative `{}` without a nominal torque table",
+                alt.name
+            );
         };
-        if table.sensor != ch.table.sensor {
+        let a = TableAlternative::new(alt, &ch.table, &ch.alternatives, cfg, "torque")?;
+        ch.alternatives.push(a);
+        self.share_scratch();
+        Ok(self)
+    }
+
+    /// Adds an angle table for a structural alternative of the chassis: as
+    /// [`Self::with_torque_alternative`], for the steering-angle estimator. Its estimator is
+    /// fed every event the angle's is, and while the estimate comes from the angle (no torque
+    /// table, or none of its events used yet) the report weighs the angle tables' posteriors by
+    /// their probabilities ([`Report::angle_tables`]). Needs the observer's own angle table,
+    /// and a table of the same angle sensor.
+    pub fn with_angle_alternative(mut self, alt: Alternative) -> anyhow::Result<Observer> {
+        let Some(nominal) = self.table.as_ref() else {
             anyhow::bail!(
-                "torque table alternative `{name}`: built for another torque sensor ({:?}) than \
-                 the nominal table ({:?})",
-                table.sensor,
-                ch.table.sensor
+                "angle table alternative `{}` without a nominal angle table",
+                alt.name
             );
-        }
-        if name == NOMINAL_TABLE || ch.alternatives.iter().any(|a| a.name == name) {
-            anyhow::bail!("torque table alternative `{name}`: the name is taken");
-        }
-        let others: f64 = ch.alternatives.iter().map(|a| a.ln_prior.exp()).sum();
-        if !(prior > 0.0 && prior + others < 1.0) {
-            anyhow::bail!(
-                "torque table alternative `{name}`: its prior probability {prior} must be above \
-                 0, and the alternatives' together ({}) below 1",
-                prior + others
-            );
-        }
-        let estimator = Estimator::new(&table, cfg)?;
-        ch.alternatives.push(TorqueAlternative {
-            name: name.to_string(),
-            inspect,
-            ln_prior: prior.ln(),
-            table,
-            estimator,
-        });
+        };
+        let a = TableAlternative::new(
+            alt,
+            nominal,
+            &self.angle_alternatives,
+            self.cfg.estimator.clone(),
+            "angle",
+        )?;
+        self.angle_alternatives.push(a);
         self.share_scratch();
         Ok(self)
     }
@@ -630,6 +737,11 @@ impl Observer {
     /// one per-event scratch ([`Estimator::share_scratch`]): they take an event one after
     /// another, and each table's estimator would otherwise keep its own copy (about 150 KB).
     fn share_scratch(&mut self) {
+        if let Some(angle) = self.estimator.as_ref() {
+            for a in &mut self.angle_alternatives {
+                a.estimator.share_scratch(angle);
+            }
+        }
         let Some(t) = self.torque.as_mut() else {
             return;
         };
@@ -641,9 +753,10 @@ impl Observer {
         }
     }
 
-    /// The chassis variant the estimate is read with ([`Self::with_torque_alternative`]): its
-    /// name while the torque channel is active and one of its alternatives fits the events
-    /// best, `None` otherwise (the nominal chassis, or no alternatives).
+    /// The chassis variant the estimate is read with ([`Self::with_torque_alternative`],
+    /// [`Self::with_angle_alternative`]): its name when one of the alternatives of the channel
+    /// the estimate comes from fits the events best, `None` otherwise (the nominal chassis, or
+    /// no alternatives).
     pub fn chassis_variant(&self) -> Option<String> {
         self.chosen_alternative().map(|a| a.name.clone())
     }
@@ -654,12 +767,25 @@ impl Observer {
         self.chosen_alternative().and_then(|a| a.inspect.clone())
     }
 
-    fn chosen_alternative(&self) -> Option<&TorqueAlternative> {
-        let t = self.torque.as_ref().filter(|t| t.active())?;
-        match t.chosen() {
-            0 => None,
-            i => Some(&t.alternatives[i - 1]),
+    fn chosen_alternative(&self) -> Option<&TableAlternative> {
+        self.mixture()?.chosen_alternative()
+    }
+
+    /// The tables of the channel the estimate comes from: the torque's once it has used an
+    /// event, else the angle's; `None` without an angle table and before the torque's first.
+    fn mixture(&self) -> Option<Mixture<'_>> {
+        match &self.torque {
+            Some(t) if t.active() => Some(t.mixture()),
+            _ => self.angle_mixture(),
         }
+    }
+
+    /// The angle's tables: its own and its chassis variants'.
+    fn angle_mixture(&self) -> Option<Mixture<'_>> {
+        Some(Mixture {
+            nominal: self.estimator.as_ref()?,
+            alternatives: &self.angle_alternatives,
+        })
     }
 
     /// The torque channel's estimators with their tables (the nominal first, then each
@@ -681,20 +807,14 @@ impl Observer {
     /// (of its tables, the most probable), else the angle's. The estimate itself is
     /// [`Self::posterior`].
     pub fn active_estimator(&self) -> Option<&Estimator> {
-        match &self.torque {
-            Some(t) if t.active() => Some(t.chosen_estimator()),
-            _ => self.estimator.as_ref(),
-        }
+        Some(self.mixture()?.chosen_estimator())
     }
 
     /// The clearance posterior the report reads: the torque channel's once it has used an
-    /// event (with chassis variants, the mixture over its tables weighed by how well the
-    /// events fit each: [`posterior`]), else the angle estimator's.
+    /// event, else the angle's (with chassis variants, the mixture over the channel's tables
+    /// weighed by how well the events fit each: [`posterior`]).
     pub fn posterior(&self) -> Option<posterior::Posterior<'_>> {
-        match &self.torque {
-            Some(t) if t.active() => Some(t.posterior()),
-            _ => self.estimator.as_ref().map(posterior::Posterior::single),
-        }
+        Some(self.mixture()?.posterior())
     }
 
     /// As [`Self::new`], but the used events do not reach the estimator by themselves: the
@@ -710,10 +830,21 @@ impl Observer {
         Ok(obs)
     }
 
-    /// The estimator with the table it predicts from, for a caller that feeds it
-    /// ([`Self::new_caller_fed`]); `None` without a response table.
-    pub fn estimator_mut(&mut self) -> Option<(&mut Estimator, &ResponseTable)> {
-        Some((self.estimator.as_mut()?, self.table.as_ref()?))
+    /// The angle's estimators with their tables (its own first, then each chassis variant's),
+    /// for a caller that feeds them ([`Self::new_caller_fed`]); empty without a response
+    /// table. Each takes every angle event.
+    pub fn angle_estimators_mut(
+        &mut self,
+    ) -> impl Iterator<Item = (&mut Estimator, &ResponseTable)> + '_ {
+        self.estimator
+            .as_mut()
+            .zip(self.table.as_ref())
+            .into_iter()
+            .chain(
+                self.angle_alternatives
+                    .iter_mut()
+                    .map(|a| (&mut a.estimator, &a.table)),
+            )
     }
 
     /// Notes the wheel-order share ([`wheel_order`]) of an event the caller fed to the
@@ -746,6 +877,9 @@ impl Observer {
         self.wheel_order.iter_mut().for_each(|w| w.clear());
         if let Some(t) = self.table.as_ref() {
             self.estimator = Some(Estimator::new(t, self.cfg.estimator.clone())?);
+        }
+        for a in &mut self.angle_alternatives {
+            a.estimator = Estimator::new(&a.table, self.cfg.estimator.clone())?;
         }
         let tcfg = self.torque_estimator_config();
         if let Some(t) = self.torque.as_mut() {
@@ -1132,6 +1266,9 @@ impl Observer {
             self.table.as_ref(),
         ) {
             feed_event(est, t, f, &rec);
+            for a in &mut self.angle_alternatives {
+                feed_event(&mut a.estimator, &a.table, f, &rec);
+            }
             if let Some(x) = f.wheel_order_share {
                 self.note_wheel_order(features::SteerSignal::AngleDeg, x);
             }
@@ -1293,27 +1430,19 @@ impl Observer {
         let torque_tables = self
             .torque
             .as_ref()
-            .map(TorqueChannel::evidence)
+            .map(|t| t.mixture().evidence())
+            .unwrap_or_default();
+        let angle_tables = self
+            .angle_mixture()
+            .map(Mixture::evidence)
             .unwrap_or_default();
         let verdict = match &self.torque {
-            Some(t) if t.active() => match torque_tables.iter().find(|e| e.chosen) {
-                Some(e) if e.name != NOMINAL_TABLE => format!(
-                    "{verdict} from the steering torque, read mostly with the torque table for \
-                     {} (probability {:.2} among the profile's {} torque tables, by how well \
-                     the events fit each; the estimate weighs every table by it)",
-                    e.name,
-                    e.weight.unwrap_or(f64::NAN),
-                    torque_tables.len()
-                ),
-                Some(e) if e.weight.is_some_and(|w| w < MIXED_WEIGHT) => format!(
-                    "{verdict} from the steering torque, read mostly with the profile's nominal \
-                     torque table (probability {:.2} among its {} torque tables, by how well \
-                     the events fit each; the estimate weighs every table by it)",
-                    e.weight.unwrap_or(f64::NAN),
-                    torque_tables.len()
-                ),
-                _ => format!("{verdict} from the steering torque"),
-            },
+            Some(t) if t.active() => read_with(
+                format!("{verdict} from the steering torque"),
+                &torque_tables,
+                "torque",
+            ),
+            _ if summary.is_some() => read_with(verdict, &angle_tables, "angle"),
             _ => verdict,
         };
         let sensor_noise = self.measured_noise();
@@ -1347,6 +1476,7 @@ impl Observer {
                 events_without_torque: t.without,
             }),
             torque_tables,
+            angle_tables,
             p_wheel_phase_fixed: active.and_then(|e| e.phase_fixed_probability()),
             model_fit,
             sensor_noise,

@@ -1,7 +1,8 @@
 //! The clearance posterior the report reads: one estimator's, or a weighted mixture of several.
 //!
-//! With a profile's chassis variants (`[[chassis.variants]]`) the torque channel keeps one
-//! estimator per response table, each fed every event. Each table `k` is a model of the car
+//! With a profile's chassis variants (`[[chassis.variants]]`) each steering channel (the
+//! torque's, and the angle's where the variants name angle tables) keeps one estimator per
+//! response table, each fed every event. Each table `k` is a model of the car
 //! (MODEL.md §9 and §15 with its own scrub radius or kingpin damping, or with uneven brake
 //! discs drawn per table vehicle, §14); its posterior weight is
 //! its prior times the events' tempered marginal likelihood under it, normalised

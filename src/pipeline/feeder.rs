@@ -149,6 +149,7 @@ impl Offline {
         }
         let rules = cfg.alerts.clone();
         let stage = ObserverStage::new(&cfg, tables.angle)?
+            .with_angle_alternatives(tables.angle_alternatives)?
             .with_torque_tables(tables.torque, tables.torque_alternatives)?;
         let monitor = Monitor::new(stage, rules);
         Ok(Offline {

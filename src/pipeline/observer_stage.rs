@@ -53,6 +53,9 @@ pub struct Tables {
     /// Torque tables of structural alternatives of the chassis, by name
     /// ([`Observer::with_torque_alternative`]); used only beside `torque`.
     pub torque_alternatives: Vec<crate::observer::Alternative>,
+    /// Angle tables of structural alternatives of the chassis, by name
+    /// ([`Observer::with_angle_alternative`]); used only beside `angle`.
+    pub angle_alternatives: Vec<crate::observer::Alternative>,
 }
 
 impl From<Option<ResponseTable>> for Tables {
@@ -444,17 +447,16 @@ impl ObserverStage {
         ev: &Evidence,
         mut feed: impl FnMut(&mut Estimator, &ResponseTable, f64, f64, Option<f64>) -> bool,
     ) -> (bool, bool) {
-        let angle = match (
-            ev.rms_deg.is_finite() && ev.peak_deg.is_finite(),
-            self.obs.estimator_mut(),
-        ) {
-            (true, Some((est, table))) => {
-                feed(est, table, ev.rms_deg, ev.peak_deg, ev.cruise_rms_deg)
+        // Every table of a channel (the nominal and its structural alternatives) takes the
+        // event; the nominal's answer is the channel's.
+        let mut angle = None;
+        if ev.rms_deg.is_finite() && ev.peak_deg.is_finite() {
+            for (est, table) in self.obs.angle_estimators_mut() {
+                let took = feed(est, table, ev.rms_deg, ev.peak_deg, ev.cruise_rms_deg);
+                angle.get_or_insert(took);
             }
-            _ => false,
-        };
-        // Every torque table (the nominal and its structural alternatives) takes the event;
-        // the nominal's answer is the channel's.
+        }
+        let angle = angle.unwrap_or(false);
         let mut torque = None;
         if let Some(t) = ev.torque_nm {
             for (est, table) in self.obs.torque_estimators_mut() {
@@ -480,6 +482,21 @@ impl ObserverStage {
             self.has_table = true;
             for a in alternatives {
                 self.obs = self.obs.with_torque_alternative(a)?;
+            }
+        }
+        Ok(self)
+    }
+
+    /// Adds the angle tables of structural alternatives of the chassis beside the stage's angle
+    /// table ([`Observer::with_angle_alternative`]); without an angle table they have nothing
+    /// to go beside and are not used ([`Tables::angle_alternatives`]).
+    pub fn with_angle_alternatives(
+        mut self,
+        alternatives: Vec<crate::observer::Alternative>,
+    ) -> anyhow::Result<Self> {
+        if self.obs.estimator().is_some() {
+            for a in alternatives {
+                self.obs = self.obs.with_angle_alternative(a)?;
             }
         }
         Ok(self)

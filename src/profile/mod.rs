@@ -97,9 +97,9 @@ pub struct ChassisSection {
     /// `[[chassis.variants]]`: structural alternatives of this chassis that a car of the model
     /// may have and that the nuisance prior does not cover (a scrub radius turns the brake
     /// force into a steady kingpin moment, MODEL.md §14, which the nominal table would read as
-    /// wear). Each names a torque table built on the chassis with that change; every estimate
-    /// feeds all of the profile's torque tables and weighs their readings by how well the
-    /// vehicle's events fit each ([`crate::observer::posterior`]).
+    /// wear). Each names a torque table, an angle table or both, built on the chassis with that
+    /// change; every estimate feeds all of the profile's tables of a signal and weighs their
+    /// readings by how well the vehicle's events fit each ([`crate::observer::posterior`]).
     #[serde(default)]
     pub variants: Vec<ChassisVariant>,
 }
@@ -135,8 +135,15 @@ pub struct ChassisVariant {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub inspect: Option<String>,
     /// Its torque table (`shimmy calibrate --signal torque` on the chassis with this change
-    /// and the §15 column), relative to the profile folder.
-    pub torque_table: String,
+    /// and the §15 column), relative to the profile folder; needs the profile's own
+    /// `torque_table`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub torque_table: Option<String>,
+    /// Its steering-angle table (`shimmy calibrate` on the chassis with this change, for the
+    /// profile's angle sensor), relative to the profile folder; needs the profile's own
+    /// `table`. At least one of the two tables is given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub table: Option<String>,
     /// The probability that a car of this model has this variant rather than the profile's
     /// chassis, before any of its events is seen; default [`DEFAULT_VARIANT_PRIOR`]. A vehicle
     /// is read with the variant's table once its events favour it by more than these odds.
@@ -188,6 +195,13 @@ pub const DEFAULT_VARIANT_PRIOR: f64 = 0.2;
 
 fn default_variant_prior() -> f64 {
     DEFAULT_VARIANT_PRIOR
+}
+
+/// Which steering signal's table a chassis variant's entry names.
+#[derive(Clone, Copy)]
+enum Signal {
+    Angle,
+    Torque,
 }
 
 /// `[chassis.prior]` ([`NuisanceRanges`]).
@@ -468,9 +482,24 @@ impl Profile {
                     v.name
                 );
             }
-            if file.torque_table.is_none() {
+            if v.torque_table.is_none() && v.table.is_none() {
+                bail!(
+                    "{}: chassis variant `{}` names no table: give its torque_table, its \
+                     (angle) table or both",
+                    ctx(),
+                    v.name
+                );
+            }
+            if v.torque_table.is_some() && file.torque_table.is_none() {
                 bail!(
                     "{}: chassis variant `{}` needs the nominal torque_table beside it",
+                    ctx(),
+                    v.name
+                );
+            }
+            if v.table.is_some() && file.table.is_none() {
+                bail!(
+                    "{}: chassis variant `{}` needs the nominal (angle) table beside it",
                     ctx(),
                     v.name
                 );
@@ -594,20 +623,53 @@ impl Profile {
         if self.mapping.steer_torque.is_none() {
             return Ok(Vec::new());
         }
-        let mut out = Vec::with_capacity(variants.len());
-        for v in variants {
-            let path = self.dir.join(&v.torque_table);
+        self.load_alternatives(nominal, Signal::Torque)
+    }
+
+    /// The angle tables of the profile's `[[chassis.variants]]` that name one, by name, each
+    /// checked as [`Self::check_table`] checks the nominal one but against its variant's
+    /// chassis and prior, to go beside `nominal`, the profile's angle table as
+    /// [`Self::load_table`] gave it (its correction, when it has one, applies to them too, as
+    /// [`Self::load_torque_alternatives`] says). Empty when no variant names an angle table.
+    pub fn load_angle_alternatives(
+        &self,
+        nominal: &ResponseTable,
+    ) -> anyhow::Result<Vec<crate::observer::Alternative>> {
+        self.load_alternatives(nominal, Signal::Angle)
+    }
+
+    /// The variants' tables of `signal`, each checked against its variant's chassis and prior
+    /// and given `nominal`'s correction.
+    fn load_alternatives(
+        &self,
+        nominal: &ResponseTable,
+        signal: Signal,
+    ) -> anyhow::Result<Vec<crate::observer::Alternative>> {
+        let mut out = Vec::new();
+        for v in &self.file.chassis.variants {
+            let (file, what) = match signal {
+                Signal::Angle => (&v.table, "table"),
+                Signal::Torque => (&v.torque_table, "torque table"),
+            };
+            let Some(file) = file else {
+                continue;
+            };
+            let path = self.dir.join(file);
             let ctx = || {
                 format!(
-                    "profile {}: chassis variant `{}`: torque table {}",
+                    "profile {}: chassis variant `{}`: {what} {}",
                     self.name,
                     v.name,
                     path.display()
                 )
             };
             let mut t = ResponseTable::load(&path).with_context(ctx)?;
-            self.check_torque_table_on(&t, &self.variant_vehicle(v), &self.variant_prior(v))
-                .with_context(ctx)?;
+            let (vehicle, prior) = (self.variant_vehicle(v), self.variant_prior(v));
+            match signal {
+                Signal::Angle => self.check_table_on(&t, &vehicle, &prior),
+                Signal::Torque => self.check_torque_table_on(&t, &vehicle, &prior),
+            }
+            .with_context(ctx)?;
             t.correction = nominal.correction.clone();
             out.push(crate::observer::Alternative {
                 name: v.name.clone(),
@@ -688,7 +750,17 @@ impl Profile {
 
     /// Refuses a table built for another chassis or sensor than this profile's.
     pub fn check_table(&self, t: &ResponseTable) -> anyhow::Result<()> {
-        t.check_vehicle(&self.chassis_hash()?)?;
+        self.check_table_on(t, &self.vehicle, &self.prior)
+    }
+
+    /// [`Self::check_table`] against `vehicle` and `prior` (the profile's, or a variant's).
+    fn check_table_on(
+        &self,
+        t: &ResponseTable,
+        vehicle: &VehicleParams,
+        prior: &NuisanceRanges,
+    ) -> anyhow::Result<()> {
+        t.check_vehicle(&vehicle_hash(vehicle)?)?;
         if t.sensor != self.sensor {
             bail!(
                 "built for a steering angle sensor of {} Hz, {} deg steps, {} deg noise, but the \
@@ -702,12 +774,12 @@ impl Profile {
                 self.name
             );
         }
-        if t.prior != self.prior {
+        if t.prior != *prior {
             bail!(
                 "built with the nuisance prior {:?}, but the profile's is {:?}; rebuild it with \
                  `shimmy calibrate --profile {}`",
                 t.prior,
-                self.prior,
+                prior,
                 self.name
             );
         }
