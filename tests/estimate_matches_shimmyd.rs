@@ -6,6 +6,7 @@
 
 mod e2e_common;
 
+use std::ffi::{OsStr, OsString};
 use std::path::Path;
 use std::process::Command;
 
@@ -108,7 +109,7 @@ fn fleet_logs(
     vehicles: u32,
     events: u32,
     seed: u64,
-    extra: &[&std::ffi::OsStr],
+    extra: &[&OsStr],
 ) -> std::path::PathBuf {
     let logs = dir.join("fleet");
     let out = Command::new(firmware_sim())
@@ -168,6 +169,61 @@ fn vehicles_with_a_steering_column_give_the_same_torque_estimate() {
     }
 }
 
+/// The fleet arguments for vehicles of `vehicle` (a MODEL.md §9 file) with a 10 mm scrub radius,
+/// written to `plant`, at 0.2 mm.
+fn worn_with_scrub_radius(vehicle: &Path, plant: &Path) -> Vec<OsString> {
+    let text = std::fs::read_to_string(vehicle).unwrap();
+    let scrub = text.replacen("scrub_radius_m = 0.0 ", "scrub_radius_m = 0.01 ", 1);
+    assert_ne!(text, scrub, "the vehicle file sets scrub_radius_m");
+    std::fs::write(plant, scrub).unwrap();
+    [
+        "--plant".into(),
+        plant.into(),
+        "--clearance-mm".into(),
+        "0.2".into(),
+    ]
+    .to_vec()
+}
+
+/// The name of the table `estimate`'s report says it read the estimate mostly with, among its
+/// `key` (`torque_tables` or `angle_tables`).
+fn chosen_table(e: &Value, key: &str) -> String {
+    e[key]
+        .as_array()
+        .unwrap_or_else(|| panic!("no {key}: {e}"))
+        .iter()
+        .find(|t| t["chosen"] == true)
+        .map(|t| t["name"].as_str().unwrap().to_string())
+        .expect("a chosen table")
+}
+
+/// The same on the 5-DOF reference bus, whose profile's chassis variants name angle tables:
+/// a vehicle with a 10 mm scrub radius is read by both with the variant's angle table, and
+/// they agree on the estimate.
+#[test]
+fn vehicles_with_a_scrub_radius_are_read_with_the_same_angle_variant() {
+    let dir = tempfile::tempdir().unwrap();
+    let plant = dir.path().join("scrub.toml");
+    let default = workspace().join("config/vehicle/default.toml");
+    let extra = worn_with_scrub_radius(&default, &plant);
+    let extra: Vec<&OsStr> = extra.iter().map(|a| a.as_os_str()).collect();
+    let logs = fleet_logs(dir.path(), "shimmy_reference", 1, 20, 77300, &extra);
+    let log = logs.join("fleet_77300.log");
+    let run = dir.path().join("run0");
+    let e = compare_on("shimmy_reference", &log, &run);
+    assert!(e.get("torque_tables").is_none(), "{e}");
+    let chosen = chosen_table(&e, "angle_tables");
+    assert_eq!(chosen, "scrub radius 10 mm", "{}", e["angle_tables"]);
+    let j = e2e_common::Journal::read(&run.join("journal"));
+    let daemon = j.estimate.unwrap_or(Value::Null)["chassis_variant"].clone();
+    assert_eq!(daemon, chosen.as_str(), "{}", log.display());
+    assert!(
+        e["verdict"].as_str().unwrap().contains(&chosen),
+        "{}",
+        e["verdict"]
+    );
+}
+
 /// With a chassis variant (the reference EPS profile's 10 mm scrub radius) on vehicles that
 /// have it: both read the same table, `estimate`'s report naming it among its torque tables
 /// and shimmyd's estimate carrying it as the chassis variant, and agree on the estimate.
@@ -175,29 +231,15 @@ fn vehicles_with_a_steering_column_give_the_same_torque_estimate() {
 fn vehicles_with_a_scrub_radius_are_read_with_the_same_chassis_variant() {
     let dir = tempfile::tempdir().unwrap();
     let plant = e2e_common::column_vehicle(dir.path());
-    let text = std::fs::read_to_string(&plant).unwrap();
-    let scrub = text.replacen("scrub_radius_m = 0.0 ", "scrub_radius_m = 0.01 ", 1);
-    assert_ne!(text, scrub, "the plant file sets scrub_radius_m");
-    std::fs::write(&plant, scrub).unwrap();
-    let extra = [
-        "--plant".as_ref(),
-        plant.as_os_str(),
-        "--clearance-mm".as_ref(),
-        "0.2".as_ref(),
-    ];
+    let extra = worn_with_scrub_radius(&plant, &plant);
+    let extra: Vec<&OsStr> = extra.iter().map(|a| a.as_os_str()).collect();
     let logs = fleet_logs(dir.path(), "shimmy_reference_eps", 2, 20, 77200, &extra);
     let mut variants = 0;
     for k in 0..2 {
         let log = logs.join(format!("fleet_{}.log", 77200 + k));
         let run = dir.path().join(format!("run{k}"));
         let e = compare_on("shimmy_reference_eps", &log, &run);
-        let chosen = e["torque_tables"]
-            .as_array()
-            .expect("torque_tables")
-            .iter()
-            .find(|t| t["chosen"] == true)
-            .map(|t| t["name"].as_str().unwrap().to_string())
-            .expect("a chosen table");
+        let chosen = chosen_table(&e, "torque_tables");
         let j = e2e_common::Journal::read(&run.join("journal"));
         let daemon = j.estimate.unwrap_or(Value::Null)["chassis_variant"].clone();
         if chosen == "nominal" {

@@ -76,11 +76,32 @@ fn every_shipped_profile_loads_and_its_mapping_fits_its_dbc() {
             let alts = p
                 .load_torque_alternatives(&tt)
                 .unwrap_or_else(|e| panic!("{name}: {e:#}"));
-            assert_eq!(alts.len(), p.file.chassis.variants.len(), "{name}");
+            let with_torque = p.file.chassis.variants.iter();
+            assert_eq!(
+                alts.len(),
+                with_torque.filter(|v| v.torque_table.is_some()).count(),
+                "{name}"
+            );
             for a in &alts {
                 assert_eq!(a.table.sensor, tt.sensor, "{name}: {}", a.name);
                 assert_eq!(terms(&a.table), law, "{name}: {}", a.name);
             }
+        }
+        // Its chassis variants' angle tables load, each for the profile's angle sensor and
+        // clearance grid, and with the nominal table's law.
+        let alts = p
+            .load_angle_alternatives(&t)
+            .unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        let with_angle = p.file.chassis.variants.iter();
+        assert_eq!(
+            alts.len(),
+            with_angle.filter(|v| v.table.is_some()).count(),
+            "{name}"
+        );
+        for a in &alts {
+            assert_eq!(a.table.sensor, t.sensor, "{name}: {}", a.name);
+            assert_eq!(a.table.clearance_mm, t.clearance_mm, "{name}: {}", a.name);
+            assert_eq!(terms(&a.table), terms(&t), "{name}: {}", a.name);
         }
     }
 }
@@ -170,13 +191,15 @@ fn profile_copy(name: &str, edit: impl Fn(String) -> String) -> std::path::PathB
     let lines: Vec<String> = text
         .lines()
         .map(|l| {
-            match l
-                .strip_prefix("torque_table = \"")
-                .and_then(|r| r.strip_suffix('"'))
-            {
-                Some(f) if !f.starts_with('/') => format!("torque_table = \"{}\"", abs(f)),
-                _ => l.to_string(),
+            for key in ["torque_table", "table"] {
+                let rel = l
+                    .strip_prefix(&format!("{key} = \""))
+                    .and_then(|r| r.strip_suffix('"'));
+                if let Some(f) = rel.filter(|f| !f.starts_with('/')) {
+                    return format!("{key} = \"{}\"", abs(f));
+                }
             }
+            l.to_string()
         })
         .collect();
     text = lines.join("\n") + "\n";
@@ -307,7 +330,8 @@ fn chassis_variants_are_checked_against_their_own_chassis() {
     let e = format!("{:#}", Profile::load_dir(&alone).unwrap_err());
     assert!(e.contains("needs the nominal torque_table"), "{e}");
 
-    // Without variants the list is empty, and a profile whose mapping maps no torque has none.
+    // Without a torque table the list is empty, and a profile whose mapping maps no torque has
+    // none.
     let plain = Profile::load("shimmy_reference").unwrap();
     assert!(plain.load_torque_alternatives(&nominal).unwrap().is_empty());
     let mut no_torque = p.clone();
@@ -316,4 +340,74 @@ fn chassis_variants_are_checked_against_their_own_chassis() {
         .load_torque_alternatives(&nominal)
         .unwrap()
         .is_empty());
+}
+
+/// A chassis variant's angle table is checked against the variant's chassis and prior, as its
+/// torque table is: the 5-DOF reference profile's variants (a 10 mm scrub radius, uneven discs
+/// on it) load with their angle tables, none of which is the profile's own chassis's; the
+/// nominal table named as a variant's is refused, as are a variant that names no table and an
+/// angle variant without the nominal angle table. A profile whose variants name torque tables
+/// alone has no angle alternatives.
+#[test]
+fn angle_chassis_variants_are_checked_against_their_own_chassis() {
+    let p = Profile::load("shimmy_reference").unwrap();
+    let nominal = p.load_table().unwrap().unwrap();
+    let alts = p.load_angle_alternatives(&nominal).unwrap();
+    let names: Vec<&str> = alts.iter().map(|a| a.name.as_str()).collect();
+    assert_eq!(names, ["scrub radius 10 mm", "uneven brake discs"]);
+    for a in &alts {
+        assert_eq!(a.table.sensor, nominal.sensor);
+        let e = format!("{:#}", p.check_table(&a.table).unwrap_err());
+        assert!(
+            e.contains("vehicle") || e.contains("chassis"),
+            "{}: {e}",
+            a.name
+        );
+    }
+    assert_eq!(
+        alts[1].table.prior.brake_torque_variation_rel,
+        Some((0.0, 0.05))
+    );
+    assert!(alts[1].inspect.as_deref().unwrap().contains("brake discs"));
+    assert!(p.load_torque_alternatives(&nominal).unwrap().is_empty());
+
+    // The nominal table named as the scrub variant's: built without the scrub radius.
+    let own = profile_copy("shimmy_reference", |t| {
+        t.lines()
+            .map(|l| {
+                if l.starts_with("table = ") && l.contains("table_scrub10mm.json") {
+                    let nominal = repo("config/vehicles/shimmy_reference/table.json");
+                    format!("table = \"{}\"", nominal.display())
+                } else {
+                    l.to_string()
+                }
+            })
+            .collect::<Vec<_>>()
+            .join("\n")
+    });
+    let op = Profile::load_dir(&own).unwrap();
+    let e = format!("{:#}", op.load_angle_alternatives(&nominal).unwrap_err());
+    assert!(e.contains("chassis variant `scrub radius 10 mm`"), "{e}");
+
+    let tableless = profile_copy("shimmy_reference", |t| {
+        t.lines()
+            .filter(|l| !(l.starts_with("table = ") && l.contains("table_scrub10mm.json")))
+            .collect::<Vec<_>>()
+            .join("\n")
+    });
+    let e = format!("{:#}", Profile::load_dir(&tableless).unwrap_err());
+    assert!(e.contains("names no table"), "{e}");
+
+    let alone = profile_copy("shimmy_reference", |t| {
+        t.lines()
+            .filter(|l| !(l.starts_with("table = ") && l.ends_with("/table.json\"")))
+            .collect::<Vec<_>>()
+            .join("\n")
+    });
+    let e = format!("{:#}", Profile::load_dir(&alone).unwrap_err());
+    assert!(e.contains("needs the nominal (angle) table"), "{e}");
+
+    let rav4_like = Profile::load("shimmy_reference_eps").unwrap();
+    let t = rav4_like.load_table().unwrap().unwrap();
+    assert!(rav4_like.load_angle_alternatives(&t).unwrap().is_empty());
 }

@@ -5,7 +5,8 @@
 //! `[[chassis.variants]]` ones: a 10 mm scrub radius, a kingpin damping ×1.2 and ×0.8, uneven
 //! brake discs). A car with the scrub radius must be read with that variant's table, a car
 //! damped 20 % less than the model (beyond the prior's ±10 %) with the ×0.8 table, a car
-//! without either with the nominal one, and the report must say which and why.
+//! without either with the nominal one, and the report must say which and why. The same for
+//! the angle's tables on the 5-DOF reference bus (profile `shimmy_reference`).
 
 mod fleet_common;
 
@@ -129,6 +130,94 @@ fn a_car_damped_beyond_the_prior_is_read_with_the_damping_variant() {
         err(&read) < err(&alone),
         "variant {:?} vs nominal only {:?}",
         read.iter().map(|v| &v["median_mm"]).collect::<Vec<_>>(),
+        alone.iter().map(|v| &v["median_mm"]).collect::<Vec<_>>()
+    );
+}
+
+/// The angle's chassis variants, on the 5-DOF reference bus (profile `shimmy_reference`, no
+/// column and no torque): its `[[chassis.variants]]` name angle tables (a 10 mm scrub radius,
+/// uneven brake discs on it), and the estimate, which comes from the angle, weighs them. A car
+/// with the scrub radius is read with that variant's angle table and lands nearer its
+/// clearance than with the nominal table alone, whose steady shake it would read as wear; a
+/// car of the profile's own chassis is read with the nominal table.
+#[test]
+fn a_5dof_car_with_a_scrub_radius_is_read_with_the_angle_variant() {
+    let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("angle_variants_plant");
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = std::fs::read_to_string(fleet_common::repo("config/vehicle/default.toml")).unwrap();
+    let scrubbed = text.replacen("scrub_radius_m = 0.0 ", "scrub_radius_m = 0.01 ", 1);
+    assert_ne!(
+        scrubbed, text,
+        "no scrub_radius_m = 0.0 in the default vehicle"
+    );
+    let plant = dir.join("plant_scrub10.toml");
+    std::fs::write(&plant, scrubbed).unwrap();
+    let plant_arg = vec!["--plant".to_string(), plant.display().to_string()];
+    let chosen = |v: &Value| -> String {
+        assert!(v.get("torque_tables").is_none(), "{v}");
+        let tables = v["angle_tables"].as_array().expect("angle_tables");
+        assert_eq!(tables.len(), 3, "{v}");
+        let chosen: Vec<&Value> = tables.iter().filter(|t| t["chosen"] == true).collect();
+        assert_eq!(chosen.len(), 1, "{v}");
+        assert_eq!(v["angle_table"], chosen[0]["name"], "{v}");
+        chosen[0]["name"].as_str().unwrap().to_string()
+    };
+    let scrub = fleet_common::fleet(
+        "angle_variants_scrub",
+        "shimmy_reference",
+        62200,
+        0.085,
+        3,
+        &plant_arg,
+    );
+    let nominal = fleet_common::fleet(
+        "angle_variants_nominal",
+        "shimmy_reference",
+        62200,
+        0.085,
+        3,
+        &[],
+    );
+    for v in &scrub {
+        assert_eq!(chosen(v), VARIANT, "{v}");
+        assert!(
+            v["verdict"]
+                .as_str()
+                .unwrap()
+                .contains(&format!("read mostly with the angle table for {VARIANT}")),
+            "{v}"
+        );
+    }
+    for v in &nominal {
+        assert_eq!(chosen(v), "nominal", "{v}");
+    }
+    let mut alone_args = plant_arg.clone();
+    alone_args.extend([
+        "--table".to_string(),
+        fleet_common::repo("config/vehicles/shimmy_reference/table.json")
+            .display()
+            .to_string(),
+    ]);
+    let alone = fleet_common::fleet(
+        "angle_variants_scrub_nominal_only",
+        "shimmy_reference",
+        62200,
+        0.085,
+        3,
+        &alone_args,
+    );
+    for v in &alone {
+        assert!(v.get("angle_tables").is_none(), "{v}");
+    }
+    let err = |vs: &[Value]| -> f64 {
+        vs.iter()
+            .map(|v| (v["median_mm"].as_f64().unwrap() / 0.085).ln().abs())
+            .sum::<f64>()
+    };
+    assert!(
+        err(&scrub) < err(&alone),
+        "variant {:?} vs nominal only {:?}",
+        scrub.iter().map(|v| &v["median_mm"]).collect::<Vec<_>>(),
         alone.iter().map(|v| &v["median_mm"]).collect::<Vec<_>>()
     );
 }
