@@ -507,8 +507,19 @@ fn reference_copy(dir: &Path, name: &str, bus: Option<&str>) -> Profile {
     let src = repo("config/vehicles/shimmy_reference");
     let dst = dir.join(name);
     std::fs::create_dir_all(&dst).unwrap();
-    let mut profile = std::fs::read_to_string(src.join("profile.toml"))
-        .unwrap()
+    // Without its table, and so without its chassis variants' (they need it beside them).
+    let text = std::fs::read_to_string(src.join("profile.toml")).unwrap();
+    let mut in_variant = false;
+    let kept: Vec<&str> = text
+        .lines()
+        .filter(|l| {
+            if l.starts_with('[') {
+                in_variant = l.starts_with("[[chassis.variants]]");
+            }
+            !in_variant
+        })
+        .collect();
+    let mut profile = (kept.join("\n") + "\n")
         .replace("table = \"table.json\"\n", "")
         .replace(
             "dbc = \"shimmy_reference.dbc\"",

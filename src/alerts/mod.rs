@@ -452,6 +452,7 @@ mod tests {
             chassis_variant: None,
             chassis_variant_inspect: None,
             wheel_order_shake: false,
+            wheel_order_discs_ruled_out: false,
             sensor_noisier: noisy,
         }
     }
@@ -652,6 +653,7 @@ mod tests {
         let est = |p: f64, n: u32, shake: bool| Estimate {
             events_used: n,
             wheel_order_shake: shake,
+            wheel_order_discs_ruled_out: false,
             ..estimate(p, false)
         };
         let between = 0.5 * (cfg.clearance_probability + cfg.clearance_wheel_order_probability);

@@ -80,6 +80,11 @@ pub struct Estimate {
     /// before the joints are judged.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub wheel_order_shake: bool,
+    /// With `wheel_order_shake`: the events rule uneven brake discs out (the profile's table
+    /// for them fits far worse than another), so the shake is the chassis's own and the car
+    /// goes to its chassis (the `misfit` says what to check), not its discs.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub wheel_order_discs_ruled_out: bool,
     /// The model does not fit because the estimate's steering sensor measured noisier at
     /// standstill than its response table assumes (src/observer/noise_floor.rs): the monitor is
     /// not set up for this car's sensor, so no clearance alert is raised from the estimate

@@ -46,6 +46,14 @@ pub struct ModelFit {
     /// variation) the model does not have.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub wheel_order_shake: bool,
+    /// The share is above its limit, but the events rule uneven discs out: the profile's
+    /// uneven-discs table fits them far worse than another of its tables (its posterior
+    /// probability below `DISCS_RULED_OUT`, src/observer/mod.rs), so the shake is the
+    /// chassis's own (the unbalance through a scrub radius) and the verdict sends the car to
+    /// its chassis, not its discs. `wheel_order_shake` stays true: the model still does not
+    /// fit, and the alert's wheel-order pair still applies.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub wheel_order_discs_ruled_out: bool,
     /// The car model's correction the estimate applied found its features' gains unequal
     /// (`gains_agree_p` below `GAINS_DISAGREE_P`, src/observer/correction.rs): the car model
     /// passes the wheels' motion on to the steering otherwise than the table's model, by more
@@ -75,6 +83,7 @@ impl ModelFit {
             sensor_noisier: false,
             wheel_order_share: None,
             wheel_order_shake: false,
+            wheel_order_discs_ruled_out: false,
             correction_gains_disagree: false,
             ln_evidence: None,
             ln_evidence_untempered: None,

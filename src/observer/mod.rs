@@ -480,6 +480,15 @@ impl TableAlternative {
 /// has alternatives.
 pub const NOMINAL_TABLE: &str = "nominal";
 
+/// Below this posterior probability of the uneven-discs table (every one, where a channel has
+/// several), the events rule uneven discs out, and a steering that shakes at wheel order is
+/// sent to its chassis (the wheels' offset and balance) instead of its discs
+/// ([`fit::ModelFit::wheel_order_discs_ruled_out`]): odds of 1 to 100 against the discs
+/// given the tables' priors, a decisive margin on the Jeffreys scale. On the disc fleets of
+/// docs/ACCURACY.md the disc table held 0.24 or more on every car the check named, on cars
+/// with a scrub radius alone 0.002 or less.
+pub const DISCS_RULED_OUT: f64 = 0.01;
+
 /// Below this probability of the nominal torque table the report says that the estimate
 /// weighs the chassis variants' tables too.
 const MIXED_WEIGHT: f64 = 0.95;
@@ -550,6 +559,23 @@ impl<'a> Mixture<'a> {
             0 => self.nominal,
             i => &self.alternatives[i - 1].estimator,
         }
+    }
+
+    /// Whether the events rule uneven brake discs out: the channel has a table whose vehicles'
+    /// discs were drawn uneven (its prior's `brake_torque_variation_rel`) and its posterior
+    /// probability among the tables is below [`DISCS_RULED_OUT`]. A shake at wheel order
+    /// while braking is then the chassis's own, which another table (a scrub radius turning
+    /// the unbalance's load variation into a kingpin moment) describes better.
+    fn rules_out_discs(self) -> bool {
+        let weights = self.weights();
+        // weights[0] is the nominal's, weights[i] the (i-1)-th alternative's.
+        let mut discs = self
+            .alternatives
+            .iter()
+            .zip(weights.iter().skip(1))
+            .filter(|(a, _)| a.table.prior.brake_torque_variation_rel.is_some())
+            .peekable();
+        discs.peek().is_some() && discs.all(|(_, w)| w.is_some_and(|w| w < DISCS_RULED_OUT))
     }
 
     /// The most probable table's alternative, `None` when it is the nominal.
@@ -946,6 +972,8 @@ impl Observer {
         let wo_cfg = &self.cfg.features.wheel_order;
         let wheel_order = self.wheel_order_share(active_signal);
         let judder = wheel_order.filter(|&m| wo_cfg.share_max > 0.0 && m > wo_cfg.share_max);
+        let discs_ruled_out =
+            judder.is_some() && self.mixture().is_some_and(Mixture::rules_out_discs);
         let Some((e, (dev, dof))) = self.active_estimator().and_then(|e| Some((e, e.fit()?)))
         else {
             return (None, None);
@@ -958,6 +986,7 @@ impl Observer {
         let mut f = fit::ModelFit::new(dev, dof, z_max);
         f.set_sensor_noisier(noisy.is_some());
         f.set_wheel_order(wheel_order, judder.is_some());
+        f.wheel_order_discs_ruled_out = discs_ruled_out;
         f.set_correction_gains_disagree(disagreeing.is_some());
         f.ln_evidence = e.ln_evidence().map(|l| l[0]);
         f.ln_evidence_untempered = e.ln_evidence().map(|l| l[1]);
@@ -984,6 +1013,25 @@ impl Observer {
                 n.measured_rms,
                 u = n.signal.unit()
             )),
+            (None, Some(share), _) if discs_ruled_out => {
+                let read_with = self.chosen_alternative();
+                Some(format!(
+                    "its steering shakes at the wheels' rotation while braking, beyond what it \
+                     does before the brake ({:.0} % of the braking band's power in that line, \
+                     median over {} events; limit {:.0} %), but its events rule uneven brake \
+                     discs out (the profile's table for them fits them far worse than the one \
+                     for {}): the shake is its chassis's own, which the table it is read with \
+                     describes only in general, so the interval is not to be trusted; check {} \
+                     and the wheels' balance first",
+                    100.0 * share,
+                    self.wheel_order[wheel_order_slot(active_signal)].len(),
+                    100.0 * wo_cfg.share_max,
+                    read_with.map_or(NOMINAL_TABLE, |a| a.name.as_str()),
+                    read_with
+                        .and_then(|a| a.inspect.as_deref())
+                        .unwrap_or("the steering geometry (the wheels' offset)")
+                ))
+            }
             (None, Some(share), _) => Some(format!(
                 "its steering shakes at the wheels' rotation while braking, beyond what it does \
                      before the brake ({:.0} % of the braking band's power in that line, median \

@@ -355,6 +355,7 @@ mod tests {
                 chassis_variant: None,
                 chassis_variant_inspect: None,
                 wheel_order_shake: false,
+                wheel_order_discs_ruled_out: false,
                 sensor_noisier: false,
             })
         }

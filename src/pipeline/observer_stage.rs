@@ -681,6 +681,7 @@ impl EventStage for ObserverStage {
             chassis_variant: used.then(|| self.obs.chassis_variant()).flatten(),
             chassis_variant_inspect: used.then(|| self.obs.chassis_variant_inspect()).flatten(),
             wheel_order_shake: fit.0.is_some_and(|f| f.wheel_order_shake),
+            wheel_order_discs_ruled_out: fit.0.is_some_and(|f| f.wheel_order_discs_ruled_out),
             sensor_noisier: fit.0.is_some_and(|f| f.sensor_noisier),
         })
     }
@@ -777,6 +778,58 @@ mod tests {
         let mut r2 = ObserverStage::new(&cfg, Some(reference_table())).unwrap();
         r2.restore(&old).unwrap();
         assert_eq!(r2.estimate().unwrap(), e_plain);
+    }
+
+    /// The wheel-order check's verdict follows the tables' evidence: with an angle table of
+    /// uneven discs beside the nominal one (here the same table, so each table's weight is its
+    /// prior), a shake at wheel order sends the car to its brake discs while the discs' table
+    /// keeps a weight of 0.3, and to its chassis, the discs ruled out, when it holds 0.001.
+    /// Either way the model does not fit and the wheel-order alert pair applies.
+    #[test]
+    fn the_wheel_order_verdict_names_the_chassis_when_the_events_rule_the_discs_out() {
+        let cfg = ObserverConfig::default();
+        let limit = cfg.features.wheel_order.share_max;
+        let fit_with = |prior: f64| {
+            let mut discs = reference_table();
+            discs.prior.brake_torque_variation_rel = Some((0.0, 0.05));
+            let alt = crate::observer::Alternative {
+                name: "uneven brake discs".into(),
+                prior,
+                inspect: None,
+                table: discs,
+            };
+            let mut st = ObserverStage::new(&cfg, Some(reference_table()))
+                .unwrap()
+                .with_angle_alternatives(vec![alt])
+                .unwrap();
+            for i in 0..cfg.features.wheel_order.min_events + 2 {
+                st.apply(&Evidence {
+                    wheel_order_share: Some(limit + 0.2),
+                    ..evidence(i, 1.0)
+                });
+            }
+            let tables = st.observer().report().angle_tables;
+            let w = tables[1].weight.unwrap();
+            (st.observer().fit_check(), w)
+        };
+        let ((f, why), w) = fit_with(0.3);
+        let f = f.unwrap();
+        assert!((w - 0.3).abs() < 1e-9, "{w}");
+        assert!(
+            f.wheel_order_shake && !f.fits && !f.wheel_order_discs_ruled_out,
+            "{f:?}"
+        );
+        assert!(why.unwrap().contains("brake discs"));
+        let ((f, why), w) = fit_with(0.001);
+        let f = f.unwrap();
+        assert!(w < crate::observer::DISCS_RULED_OUT, "{w}");
+        assert!(
+            f.wheel_order_shake && !f.fits && f.wheel_order_discs_ruled_out,
+            "{f:?}"
+        );
+        let why = why.unwrap();
+        assert!(why.contains("rule uneven brake discs out"), "{why}");
+        assert!(!why.contains("check the front brake discs"), "{why}");
     }
 
     /// The wheel-order shares of the events fed are saved with their evidence and replayed:

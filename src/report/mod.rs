@@ -66,6 +66,7 @@ mod tests {
             chassis_variant: None,
             chassis_variant_inspect: None,
             wheel_order_shake: false,
+            wheel_order_discs_ruled_out: false,
             sensor_noisier: false,
         };
         let v = |e: Estimate| super::verdict(&[], Some(&e), 12, &cfg);
@@ -96,6 +97,7 @@ mod tests {
         let judder = Estimate {
             misfit: Some("its steering shakes at the wheels' rotation while braking".into()),
             wheel_order_shake: true,
+            wheel_order_discs_ruled_out: false,
             ..est(Some(0.2), 0.15, 0.3, true)
         };
         let open = [crate::alerts::Alert {
@@ -119,6 +121,18 @@ mod tests {
         assert!(
             j.headline.contains("brake discs") && j.headline.contains("Replace"),
             "{j:?}"
+        );
+        // The same shake on a car whose events rule the discs out: the misfit names the
+        // chassis, and the discs are not sent for.
+        let chassis = Estimate {
+            misfit: Some("its events rule uneven brake discs out; check the wheels' offset".into()),
+            wheel_order_discs_ruled_out: true,
+            ..judder.clone()
+        };
+        let c = super::verdict(&open, Some(&chassis), 12, &cfg);
+        assert!(
+            c.headline.contains("wheels' offset") && !c.headline.contains("check the front brake"),
+            "{c:?}"
         );
         let plain = super::verdict(&open, Some(&est(Some(0.2), 0.15, 0.3, true)), 12, &cfg);
         assert_eq!(plain.condition, "replace", "{plain:?}");
@@ -320,18 +334,26 @@ fn verdict(open: &[Alert], est: Option<&Estimate>, events: usize, cfg: &AlertsSe
         }
     };
     // A shake locked to the wheels' rotation while braking comes from the brakes, whatever the
-    // joints: with an alert, the discs are checked before the joints are replaced.
+    // joints: with an alert, the discs are checked before the joints are replaced (unless the
+    // events rule the discs out: then it is a misfit like any other, which names the chassis).
     let (condition, headline) = match est {
-        Some(e) if e.wheel_order_shake && (has(Kind::Clearance) || has(Kind::Shimmy55)) => (
-            "inspect",
-            format!(
-                "Steering shake while braking, locked to the wheels' rotation: check the front \
-                 brake discs for thickness variation and run-out first, then the steering joints. \
-                 The braking shake the alert rests on is not the joints' alone, so the clearance \
-                 estimate is not to be trusted until the discs are fixed. (The alert: {})",
-                headline.trim_end_matches('.')
-            ),
-        ),
+        Some(e)
+            if e.wheel_order_shake
+                && !e.wheel_order_discs_ruled_out
+                && (has(Kind::Clearance) || has(Kind::Shimmy55)) =>
+        {
+            (
+                "inspect",
+                format!(
+                    "Steering shake while braking, locked to the wheels' rotation: check the \
+                     front brake discs for thickness variation and run-out first, then the \
+                     steering joints. The braking shake the alert rests on is not the joints' \
+                     alone, so the clearance estimate is not to be trusted until the discs are \
+                     fixed. (The alert: {})",
+                    headline.trim_end_matches('.')
+                ),
+            )
+        }
         // Any other misfit: the alert stands, and the mechanic confirms the play by hand.
         Some(Estimate {
             misfit: Some(why), ..
