@@ -14,7 +14,10 @@
 //! [`Report`]. With a table of the EPS torsion-bar torque ([`Observer::with_torque_table`]) it
 //! keeps a second estimator on the torque's features (MODEL.md §15: the torque sees the pinion
 //! turn against the rim, whatever the driver's hands do to the rim), and reports from it once
-//! an event with a live torque was used. What it is not: CAN decoding (that is [`crate::signals`]), the model, or the
+//! an event with a live torque was used. Either channel can carry tables of structural
+//! alternatives of the chassis (a scrub radius, uneven brake discs: MODEL.md §14), each with an
+//! estimator fed every event; the channel's posterior is then their mixture, each table weighed
+//! by its prior times how well the events fit it ([`posterior`]). What it is not: CAN decoding (that is [`crate::signals`]), the model, or the
 //! alert rules: it raises no alert. The alerts of `shimmy estimate` and shimmyd are decided by
 //! `crate::alerts::AlertBook` after each finished event, on the estimate the monitor pipeline
 //! (`crate::pipeline`) reads from this observer; the report's
@@ -844,7 +847,7 @@ impl Observer {
     }
 
     /// As [`Self::new`], but the used events do not reach the estimator by themselves: the
-    /// caller adds them through [`Self::estimator_mut`], placed on its own odometer, and can
+    /// caller adds them through [`Self::angle_estimators_mut`], placed on its own odometer, and can
     /// start the posterior afresh with [`Self::reset_estimator`] (a daemon that restores its
     /// posterior from saved evidence). [`Self::report`] then reports what the caller fed.
     pub fn new_caller_fed(
