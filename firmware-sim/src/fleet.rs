@@ -834,20 +834,18 @@ fn result(
         events_recorded: r.events.len(),
         events_used: r.events_used,
         signals: r.signals,
-        torque_table: r
-            .torque_tables
-            .iter()
-            .find(|t| t.chosen)
-            .map(|t| t.name.clone()),
+        torque_table: chosen_table(&r.torque_tables),
         torque_tables: r.torque_tables.clone(),
-        angle_table: r
-            .angle_tables
-            .iter()
-            .find(|t| t.chosen)
-            .map(|t| t.name.clone()),
+        angle_table: chosen_table(&r.angle_tables),
         angle_tables: r.angle_tables.clone(),
         seconds: t0.elapsed().as_secs_f64(),
     }
+}
+
+/// The name of the table a report's estimate was read mostly with, among `tables` (its
+/// `torque_tables` or `angle_tables`); `None` without chassis variants.
+fn chosen_table(tables: &[shimmy::observer::TableEvidence]) -> Option<String> {
+    tables.iter().find(|t| t.chosen).map(|t| t.name.clone())
 }
 
 /// The issue-5 scores of a fleet.
@@ -907,14 +905,15 @@ pub fn scores(v: &[VehicleResult], shimmy_confirm: usize) -> Scores {
     let band = count(&|r| {
         (r.clearance_true_mm > 0.07 && r.clearance_true_mm < 0.1).then_some(r.clearance_alert)
     });
-    let mut torque_tables = std::collections::BTreeMap::new();
-    for t in v.iter().filter_map(|r| r.torque_table.as_ref()) {
-        *torque_tables.entry(t.clone()).or_insert(0) += 1;
-    }
-    let mut angle_tables = std::collections::BTreeMap::new();
-    for t in v.iter().filter_map(|r| r.angle_table.as_ref()) {
-        *angle_tables.entry(t.clone()).or_insert(0) += 1;
-    }
+    let by_name = |table: fn(&VehicleResult) -> &Option<String>| {
+        let mut n = std::collections::BTreeMap::new();
+        for t in v.iter().filter_map(|r| table(r).as_ref()) {
+            *n.entry(t.clone()).or_insert(0) += 1;
+        }
+        n
+    };
+    let torque_tables = by_name(|r| &r.torque_table);
+    let angle_tables = by_name(|r| &r.angle_table);
     let big: Vec<f64> = v
         .iter()
         .filter(|r| r.clearance_true_mm >= 0.1)

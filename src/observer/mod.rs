@@ -558,10 +558,8 @@ impl<'a> Mixture<'a> {
     }
 
     fn chosen_estimator(self) -> &'a Estimator {
-        match self.chosen() {
-            0 => self.nominal,
-            i => &self.alternatives[i - 1].estimator,
-        }
+        self.chosen_alternative()
+            .map_or(self.nominal, |a| &a.estimator)
     }
 
     /// Whether the events rule uneven brake discs out: the channel has a table whose vehicles'
@@ -1016,36 +1014,37 @@ impl Observer {
                 n.measured_rms,
                 u = n.signal.unit()
             )),
-            (None, Some(share), _) if discs_ruled_out => {
-                let read_with = self.chosen_alternative();
-                Some(format!(
+            (None, Some(share), _) => {
+                let shake = format!(
                     "its steering shakes at the wheels' rotation while braking, beyond what it \
                      does before the brake ({:.0} % of the braking band's power in that line, \
-                     median over {} events; limit {:.0} %), but its events rule uneven brake \
-                     discs out (the profile's table for them fits them far worse than the one \
-                     for {}): the shake is its chassis's own, which the table it is read with \
-                     describes only in general, so the interval is not to be trusted; check {} \
-                     and the wheels' balance first",
+                     median over {} events; limit {:.0} %)",
                     100.0 * share,
                     self.wheel_order[wheel_order_slot(active_signal)].len(),
-                    100.0 * wo_cfg.share_max,
-                    read_with.map_or(NOMINAL_TABLE, |a| a.name.as_str()),
-                    read_with
-                        .and_then(|a| a.inspect.as_deref())
-                        .unwrap_or("the steering geometry (the wheels' offset)")
-                ))
+                    100.0 * wo_cfg.share_max
+                );
+                Some(if discs_ruled_out {
+                    let read_with = self.chosen_alternative();
+                    format!(
+                        "{shake}, but its events rule uneven brake discs out (the profile's table \
+                         for them fits them far worse than the one for {}): the shake is its \
+                         chassis's own, which the table it is read with describes only in \
+                         general, so the interval is not to be trusted; check {} and the wheels' \
+                         balance first",
+                        read_with.map_or(NOMINAL_TABLE, |a| a.name.as_str()),
+                        read_with
+                            .and_then(|a| a.inspect.as_deref())
+                            .unwrap_or("the steering geometry (the wheels' offset)")
+                    )
+                } else {
+                    format!(
+                        "{shake}: a brake-torque variation (disc thickness variation, brake \
+                         judder) shakes the steering whatever the joints, so the interval is not \
+                         to be trusted; check the front brake discs' thickness variation and \
+                         run-out first (docs/ACCURACY.md, \"A brake-torque variation\")"
+                    )
+                })
             }
-            (None, Some(share), _) => Some(format!(
-                "its steering shakes at the wheels' rotation while braking, beyond what it does \
-                     before the brake ({:.0} % of the braking band's power in that line, median \
-                     over {} events; limit {:.0} %): a brake-torque variation (disc thickness \
-                     variation, brake judder) shakes the steering whatever the joints, so the \
-                     interval is not to be trusted; check the front brake discs' thickness \
-                     variation and run-out first (docs/ACCURACY.md, \"A brake-torque variation\")",
-                100.0 * share,
-                self.wheel_order[wheel_order_slot(active_signal)].len(),
-                100.0 * wo_cfg.share_max
-            )),
             (None, None, Some((c, p))) => Some(format!(
                 "its car model's correction (fitted by `shimmy fleet-fit` on {} vehicles at new \
                  joints) finds the {} features' gains unequal (braking RMS ×{:.2}, peak ×{:.2}, \
@@ -1309,16 +1308,14 @@ impl Observer {
             (false, None) => {}
         }
         let amp = feats.as_ref().map(|f| self.amplitude_deg(f));
-        if let (true, true, Some(f), Some(est), Some(t)) = (
+        if let (true, true, Some(f), true) = (
             self.feeds_estimator,
             used,
             feats.as_ref(),
-            self.estimator.as_mut(),
-            self.table.as_ref(),
+            self.estimator.is_some(),
         ) {
-            feed_event(est, t, f, &rec);
-            for a in &mut self.angle_alternatives {
-                feed_event(&mut a.estimator, &a.table, f, &rec);
+            for (est, t) in self.angle_estimators_mut() {
+                feed_event(est, t, f, &rec);
             }
             if let Some(x) = f.wheel_order_share {
                 self.note_wheel_order(features::SteerSignal::AngleDeg, x);
