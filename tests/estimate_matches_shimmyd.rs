@@ -259,3 +259,48 @@ fn vehicles_with_a_scrub_radius_are_read_with_the_same_chassis_variant() {
         "no vehicle with a scrub radius read with its variant's table"
     );
 }
+
+/// A profile whose chassis variants carry an angle table beside their torque table (the VW
+/// MQB's, whose angle tables are the reference bus's): a 5-DOF car with a scrub radius, whose
+/// bus has no live torque, is read by both with the variant's angle table; a car with the
+/// MODEL.md §15 column, whose torque is live from its first event, is read from the torque,
+/// and the angle's variants are never built (the report lists no angle tables), as the
+/// torque's are not on the first car.
+#[test]
+fn a_torque_profile_reads_a_car_without_live_torque_with_its_angle_variants() {
+    let dir = tempfile::tempdir().unwrap();
+    let plant = dir.path().join("scrub.toml");
+    let default = workspace().join("config/vehicle/default.toml");
+    let extra = worn_with_scrub_radius(&default, &plant);
+    let extra: Vec<&OsStr> = extra.iter().map(|a| a.as_os_str()).collect();
+    let logs = fleet_logs(dir.path(), "vw_mqb", 1, 20, 77400, &extra);
+    let log = logs.join("fleet_77400.log");
+    let run = dir.path().join("run0");
+    let e = compare_on("vw_mqb", &log, &run);
+    assert_eq!(
+        e["signals"]["estimate_from"], "angle_deg",
+        "{}",
+        e["signals"]
+    );
+    // The torque's variants are built at its first event: none here.
+    assert!(e.get("torque_tables").is_none(), "{}", e["torque_tables"]);
+    let chosen = chosen_table(&e, "angle_tables");
+    assert_eq!(chosen, "scrub radius 10 mm", "{}", e["angle_tables"]);
+    let j = e2e_common::Journal::read(&run.join("journal"));
+    let daemon = j.estimate.unwrap_or(Value::Null)["chassis_variant"].clone();
+    assert_eq!(daemon, chosen.as_str(), "{}", log.display());
+
+    let dir = tempfile::tempdir().unwrap();
+    let plant = e2e_common::column_vehicle(dir.path());
+    let extra = ["--plant".as_ref(), plant.as_os_str()];
+    let logs = fleet_logs(dir.path(), "vw_mqb", 1, 6, 77500, &extra);
+    let log = logs.join("fleet_77500.log");
+    let e = compare_on("vw_mqb", &log, &dir.path().join("run0"));
+    assert_eq!(
+        e["signals"]["estimate_from"], "torque_nm",
+        "{}",
+        e["signals"]
+    );
+    assert!(e.get("torque_tables").is_some(), "{e}");
+    assert!(e.get("angle_tables").is_none(), "{}", e["angle_tables"]);
+}

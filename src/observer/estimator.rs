@@ -375,6 +375,19 @@ impl Estimator {
         Self::build(table, cfg, correction, Some(clearance_mm))
     }
 
+    /// Whether an estimator on `table` with `cfg` can be built ([`Self::new`]), without
+    /// holding a whole one: with method "linear", built on one clearance of the table's axis
+    /// (the same checks of the settings, the nuisance model and its prior, at a fraction of
+    /// the memory); otherwise built whole and dropped.
+    pub(crate) fn check(table: &ResponseTable, cfg: EstimatorConfig) -> anyhow::Result<()> {
+        match table.clearance_mm.first() {
+            Some(&c) if cfg.method == "linear" => {
+                Self::build(table, cfg, table.correction.as_ref(), Some(c)).map(drop)
+            }
+            _ => Self::new(table, cfg).map(drop),
+        }
+    }
+
     fn build(
         table: &ResponseTable,
         cfg: EstimatorConfig,

@@ -362,6 +362,14 @@ pub struct Observer {
     /// ([`Self::with_angle_alternative`]), each with its estimator fed every event the angle's
     /// is; the angle's estimate weighs them as the torque channel weighs its own.
     angle_alternatives: Vec<TableAlternative>,
+    /// The angle's alternatives added but not built yet: their estimators are built at the
+    /// first angle event fed while the estimate does not come from the torque
+    /// ([`Self::angle_estimators_mut`]).
+    angle_deferred: Vec<CheckedAlternative>,
+    /// Why a deferred alternative (the angle's or the torque's) could not be built (not
+    /// expected: its table passed [`Estimator::check`] when it was added); the report's
+    /// verdict says so.
+    unbuilt: Vec<String>,
     /// The torsion-bar torque channel, with a torque table.
     torque: Option<TorqueChannel>,
     /// The steering sensors' noise measured at standstill ([`noise_floor`]).
@@ -392,6 +400,9 @@ struct TorqueChannel {
     /// same events. The report weighs their posteriors by each table's probability
     /// ([`posterior`]).
     alternatives: Vec<TableAlternative>,
+    /// The alternatives added but not built yet: their estimators are built at the channel's
+    /// first event ([`Observer::torque_estimators_mut`]).
+    deferred: Vec<CheckedAlternative>,
     /// Its own extractor: the torque comes at another rate than the angle, and one extractor
     /// would redesign its filter at every switch.
     extractor: Extractor,
@@ -433,16 +444,25 @@ struct TableAlternative {
     estimator: Estimator,
 }
 
-impl TableAlternative {
-    /// `alt` with its estimator, to go beside the channel's `nominal` table and its
-    /// `others`: the same sensor, a name of its own and priors that leave the nominal some.
-    fn new(
+/// A chassis variant's table checked to go beside a channel's nominal table, without its
+/// estimator yet: the observer builds it when the channel first needs it
+/// ([`Observer::with_angle_alternative`], [`Observer::with_torque_alternative`]).
+struct CheckedAlternative {
+    name: String,
+    inspect: Option<String>,
+    ln_prior: f64,
+    table: ResponseTable,
+}
+
+impl CheckedAlternative {
+    /// `alt` beside `nominal` and the channel's `others` (name, ln prior): the same sensor, a
+    /// name of its own and priors that leave the nominal some.
+    fn new<'o>(
         alt: Alternative,
         nominal: &ResponseTable,
-        others: &[TableAlternative],
-        cfg: EstimatorConfig,
+        others: impl Iterator<Item = (&'o str, f64)> + Clone,
         channel: &str,
-    ) -> anyhow::Result<TableAlternative> {
+    ) -> anyhow::Result<CheckedAlternative> {
         let Alternative {
             name,
             prior,
@@ -457,10 +477,10 @@ impl TableAlternative {
                 nominal.sensor
             );
         }
-        if name == NOMINAL_TABLE || others.iter().any(|a| a.name == name) {
+        if name == NOMINAL_TABLE || others.clone().any(|(n, _)| n == name) {
             anyhow::bail!("{channel} table alternative `{name}`: the name is taken");
         }
-        let sum: f64 = others.iter().map(|a| a.ln_prior.exp()).sum();
+        let sum: f64 = others.map(|(_, l)| l.exp()).sum();
         if !(prior > 0.0 && prior + sum < 1.0) {
             anyhow::bail!(
                 "{channel} table alternative `{name}`: its prior probability {prior} must be \
@@ -468,12 +488,22 @@ impl TableAlternative {
                 prior + sum
             );
         }
-        let estimator = Estimator::new(&table, cfg)?;
-        Ok(TableAlternative {
+        Ok(CheckedAlternative {
             name,
             inspect,
             ln_prior: prior.ln(),
             table,
+        })
+    }
+
+    /// With its estimator on `cfg`.
+    fn build(self, cfg: EstimatorConfig) -> anyhow::Result<TableAlternative> {
+        let estimator = Estimator::new(&self.table, cfg)?;
+        Ok(TableAlternative {
+            name: self.name,
+            inspect: self.inspect,
+            ln_prior: self.ln_prior,
+            table: self.table,
             estimator,
         })
     }
@@ -677,6 +707,8 @@ impl Observer {
             used_total: 0,
             feeds_estimator: true,
             angle_alternatives: Vec::new(),
+            angle_deferred: Vec::new(),
+            unbuilt: Vec::new(),
             torque: None,
             noise_floor: noise_floor::NoiseFloor::default(),
             wheel_order: Default::default(),
@@ -704,6 +736,7 @@ impl Observer {
             table,
             estimator,
             alternatives: Vec::new(),
+            deferred: Vec::new(),
             extractor: Extractor::new(),
             noise,
             used: 0,
@@ -721,6 +754,11 @@ impl Observer {
     /// nominal one in that named way is read mostly with the table that describes it instead
     /// of a nominal table that reads its steady shake as wear. Needs
     /// [`Self::with_torque_table`] first, and a table of the same torque sensor.
+    ///
+    /// Its estimator (about 1.5 MB) is built at the channel's first event
+    /// ([`Self::torque_estimators_mut`]), so that a car whose bus carries no live torque does
+    /// not hold it beside the angle's; it is checked here ([`Estimator::check`]), so that a
+    /// table the estimator refuses is refused now.
     pub fn with_torque_alternative(mut self, alt: Alternative) -> anyhow::Result<Observer> {
         let cfg = self.torque_estimator_config();
         let Some(ch) = self.torque.as_mut() else {
@@ -729,9 +767,14 @@ impl Observer {
                 alt.name
             );
         };
-        let a = TableAlternative::new(alt, &ch.table, &ch.alternatives, cfg, "torque")?;
-        ch.alternatives.push(a);
-        self.share_scratch();
+        let others = ch
+            .alternatives
+            .iter()
+            .map(|a| (a.name.as_str(), a.ln_prior))
+            .chain(ch.deferred.iter().map(|a| (a.name.as_str(), a.ln_prior)));
+        let a = CheckedAlternative::new(alt, &ch.table, others, "torque")?;
+        Estimator::check(&a.table, cfg)?;
+        ch.deferred.push(a);
         Ok(self)
     }
 
@@ -741,6 +784,12 @@ impl Observer {
     /// table, or none of its events used yet) the report weighs the angle tables' posteriors by
     /// their probabilities ([`Report::angle_tables`]). Needs the observer's own angle table,
     /// and a table of the same angle sensor.
+    ///
+    /// Its estimator (about 1.5 MB) is built at the first angle event fed while the torque
+    /// has used none ([`Self::angle_estimators_mut`]): once the estimate comes from the
+    /// torque, the angle's variants can no longer move it, so a car whose torque is live from
+    /// its first event never holds them. It is checked here ([`Estimator::check`]), so that
+    /// a table the estimator refuses is refused now.
     pub fn with_angle_alternative(mut self, alt: Alternative) -> anyhow::Result<Observer> {
         let Some(nominal) = self.table.as_ref() else {
             anyhow::bail!(
@@ -748,16 +797,53 @@ impl Observer {
                 alt.name
             );
         };
-        let a = TableAlternative::new(
-            alt,
-            nominal,
-            &self.angle_alternatives,
-            self.cfg.estimator.clone(),
-            "angle",
-        )?;
-        self.angle_alternatives.push(a);
-        self.share_scratch();
+        let others = self
+            .angle_alternatives
+            .iter()
+            .map(|a| (a.name.as_str(), a.ln_prior))
+            .chain(
+                self.angle_deferred
+                    .iter()
+                    .map(|a| (a.name.as_str(), a.ln_prior)),
+            );
+        let a = CheckedAlternative::new(alt, nominal, others, "angle")?;
+        Estimator::check(&a.table, self.cfg.estimator.clone())?;
+        self.angle_deferred.push(a);
         Ok(self)
+    }
+
+    /// Builds the angle's deferred alternatives ([`Self::with_angle_alternative`]) once the
+    /// estimate comes from the angle: without a torque channel, or before its first event.
+    fn build_angle_alternatives(&mut self) {
+        if self.angle_deferred.is_empty() || self.torque.as_ref().is_some_and(TorqueChannel::active)
+        {
+            return;
+        }
+        for a in std::mem::take(&mut self.angle_deferred) {
+            // The same table and settings passed Estimator::check when it was added.
+            match a.build(self.cfg.estimator.clone()) {
+                Ok(a) => self.angle_alternatives.push(a),
+                Err(e) => self.unbuilt.push(format!("{e:#}")),
+            }
+        }
+        self.share_scratch();
+    }
+
+    /// Builds the torque channel's deferred alternatives ([`Self::with_torque_alternative`]):
+    /// at its first event.
+    fn build_torque_alternatives(&mut self) {
+        let cfg = self.torque_estimator_config();
+        let Some(ch) = self.torque.as_mut().filter(|t| !t.deferred.is_empty()) else {
+            return;
+        };
+        for a in std::mem::take(&mut ch.deferred) {
+            // The same table and settings passed Estimator::check when it was added.
+            match a.build(cfg.clone()) {
+                Ok(a) => ch.alternatives.push(a),
+                Err(e) => self.unbuilt.push(format!("{e:#}")),
+            }
+        }
+        self.share_scratch();
     }
 
     /// Lets the vehicle's estimators (the angle's, the torque's and its alternatives') use
@@ -817,10 +903,12 @@ impl Observer {
 
     /// The torque channel's estimators with their tables (the nominal first, then each
     /// alternative), for a caller that feeds them ([`Self::new_caller_fed`]); empty without a
-    /// torque table. Each takes every torque event.
+    /// torque table. Each takes every torque event. The alternatives' estimators are built
+    /// here, at the first call ([`Self::with_torque_alternative`]).
     pub fn torque_estimators_mut(
         &mut self,
     ) -> impl Iterator<Item = (&mut Estimator, &ResponseTable)> + '_ {
+        self.build_torque_alternatives();
         self.torque.iter_mut().flat_map(|t| {
             std::iter::once((&mut t.estimator, &t.table)).chain(
                 t.alternatives
@@ -859,10 +947,14 @@ impl Observer {
 
     /// The angle's estimators with their tables (its own first, then each chassis variant's),
     /// for a caller that feeds them ([`Self::new_caller_fed`]); empty without a response
-    /// table. Each takes every angle event.
+    /// table. Each takes every angle event. A caller that also feeds the torque's
+    /// ([`Self::torque_estimators_mut`]) feeds them first: the chassis variants' angle
+    /// estimators are built here, at the first call while the torque has used no event
+    /// ([`Self::with_angle_alternative`]).
     pub fn angle_estimators_mut(
         &mut self,
     ) -> impl Iterator<Item = (&mut Estimator, &ResponseTable)> + '_ {
+        self.build_angle_alternatives();
         self.estimator
             .as_mut()
             .zip(self.table.as_ref())
@@ -1371,9 +1463,8 @@ impl Observer {
             ch.without += 1;
         }
         if let (true, true, Some(f)) = (feeds, used, tf.as_ref()) {
-            feed_event(&mut ch.estimator, &ch.table, f, rec);
-            for a in &mut ch.alternatives {
-                feed_event(&mut a.estimator, &a.table, f, rec);
+            for (est, t) in self.torque_estimators_mut() {
+                feed_event(est, t, f, rec);
             }
             if let Some(x) = f.wheel_order_share {
                 self.note_wheel_order(features::SteerSignal::TorqueNm, x);
@@ -1495,10 +1586,13 @@ impl Observer {
         };
         let sensor_noise = self.measured_noise();
         let (model_fit, misfit) = self.fit_check_with(&sensor_noise);
-        let verdict = match misfit {
+        let mut verdict = match misfit {
             Some(why) => format!("{verdict}; but the model does not fit this vehicle: {why}"),
             None => verdict,
         };
+        for e in &self.unbuilt {
+            verdict += &format!("; a chassis variant's table was left out: {e}");
+        }
         Report {
             median_mm: summary.map(|s| s.0.median_mm),
             clearance_mm,

@@ -448,15 +448,9 @@ impl ObserverStage {
         mut feed: impl FnMut(&mut Estimator, &ResponseTable, f64, f64, Option<f64>) -> bool,
     ) -> (bool, bool) {
         // Every table of a channel (the nominal and its structural alternatives) takes the
-        // event; the nominal's answer is the channel's.
-        let mut angle = None;
-        if ev.rms_deg.is_finite() && ev.peak_deg.is_finite() {
-            for (est, table) in self.obs.angle_estimators_mut() {
-                let took = feed(est, table, ev.rms_deg, ev.peak_deg, ev.cruise_rms_deg);
-                angle.get_or_insert(took);
-            }
-        }
-        let angle = angle.unwrap_or(false);
+        // event; the nominal's answer is the channel's. The torque's first, as the observer
+        // feeds its own: whether the torque has used an event decides whether the angle's
+        // chassis variants are built ([`Observer::angle_estimators_mut`]).
         let mut torque = None;
         if let Some(t) = ev.torque_nm {
             for (est, table) in self.obs.torque_estimators_mut() {
@@ -465,6 +459,14 @@ impl ObserverStage {
             }
         }
         let torque = torque.unwrap_or(false);
+        let mut angle = None;
+        if ev.rms_deg.is_finite() && ev.peak_deg.is_finite() {
+            for (est, table) in self.obs.angle_estimators_mut() {
+                let took = feed(est, table, ev.rms_deg, ev.peak_deg, ev.cruise_rms_deg);
+                angle.get_or_insert(took);
+            }
+        }
+        let angle = angle.unwrap_or(false);
         (angle, torque)
     }
 
