@@ -410,4 +410,33 @@ fn angle_chassis_variants_are_checked_against_their_own_chassis() {
     let rav4_like = Profile::load("shimmy_reference_eps").unwrap();
     let t = rav4_like.load_table().unwrap().unwrap();
     assert!(rav4_like.load_angle_alternatives(&t).unwrap().is_empty());
+
+    // The car profiles, for a bus without a live torque: the same two variants beside their
+    // torque tables, each for the profile's own angle sensor (the RAV4's 82.9 Hz tables are its
+    // own, the others share the reference's) and the variant's chassis.
+    for name in ["toyota_rav4", "vw_mqb", "honda_civic", "hyundai_kia"] {
+        let p = Profile::load(name).unwrap();
+        let nominal = p.load_table().unwrap().unwrap();
+        let alts = p.load_angle_alternatives(&nominal).unwrap();
+        let names: Vec<&str> = alts.iter().map(|a| a.name.as_str()).collect();
+        assert_eq!(
+            names,
+            ["scrub radius 10 mm", "uneven brake discs"],
+            "{name}"
+        );
+        for a in &alts {
+            assert_eq!(
+                a.table.sensor.rate_hz, p.sensor.rate_hz,
+                "{name}: {}",
+                a.name
+            );
+            assert!(p.check_table(&a.table).is_err(), "{name}: {}", a.name);
+        }
+        let torque = p.load_torque_table().unwrap().unwrap();
+        assert_eq!(
+            p.load_torque_alternatives(&torque).unwrap().len(),
+            4,
+            "{name}"
+        );
+    }
 }

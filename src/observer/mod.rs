@@ -17,7 +17,9 @@
 //! an event with a live torque was used. Either channel can carry tables of structural
 //! alternatives of the chassis (a scrub radius, uneven brake discs: MODEL.md §14), each with an
 //! estimator fed every event; the channel's posterior is then their mixture, each table weighed
-//! by its prior times how well the events fit it ([`posterior`]). What it is not: CAN decoding (that is [`crate::signals`]), the model, or the
+//! by its prior times how well the events fit it ([`posterior`]). Those estimators are built
+//! when the channel first needs them, so a car pays only for the channel its estimate comes
+//! from. What it is not: CAN decoding (that is [`crate::signals`]), the model, or the
 //! alert rules: it raises no alert. The alerts of `shimmy estimate` and shimmyd are decided by
 //! `crate::alerts::AlertBook` after each finished event, on the estimate the monitor pipeline
 //! (`crate::pipeline`) reads from this observer; the report's
@@ -788,8 +790,10 @@ impl Observer {
     /// Its estimator (about 1.5 MB) is built at the first angle event fed while the torque
     /// has used none ([`Self::angle_estimators_mut`]): once the estimate comes from the
     /// torque, the angle's variants can no longer move it, so a car whose torque is live from
-    /// its first event never holds them. It is checked here ([`Estimator::check`]), so that
-    /// a table the estimator refuses is refused now.
+    /// its first event never builds them, and lets their tables go at that event
+    /// ([`Self::torque_takes_event`]; after [`Self::reset_estimator`] the angle is then read
+    /// with its own table alone until the torque takes an event again). It is checked here
+    /// ([`Estimator::check`]), so that a table the estimator refuses is refused now.
     pub fn with_angle_alternative(mut self, alt: Alternative) -> anyhow::Result<Observer> {
         let Some(nominal) = self.table.as_ref() else {
             anyhow::bail!(
@@ -827,6 +831,18 @@ impl Observer {
             }
         }
         self.share_scratch();
+    }
+
+    /// Says that the torque channel is about to take an event of the drive (not a baseline's):
+    /// from then on the estimate comes from the torque, so the angle's variants that are not
+    /// built yet never will be, and their tables are let go before the torque's variants are
+    /// built ([`Self::with_angle_alternative`]). A caller that feeds the estimators
+    /// ([`Self::new_caller_fed`]) calls it before [`Self::torque_estimators_mut`] for such an
+    /// event.
+    pub fn torque_takes_event(&mut self) {
+        if self.torque.is_some() {
+            self.angle_deferred = Vec::new();
+        }
     }
 
     /// Builds the torque channel's deferred alternatives ([`Self::with_torque_alternative`]):
@@ -1463,6 +1479,7 @@ impl Observer {
             ch.without += 1;
         }
         if let (true, true, Some(f)) = (feeds, used, tf.as_ref()) {
+            self.torque_takes_event();
             for (est, t) in self.torque_estimators_mut() {
                 feed_event(est, t, f, rec);
             }

@@ -534,21 +534,20 @@ pub fn profile_copy(profile: &str, dir: &Path, name: &str) -> PathBuf {
     }
     let abs = |name: &str| src.join(name).display().to_string();
     let text = std::fs::read_to_string(dst.join("profile.toml")).unwrap();
-    let mut rewritten = text.replacen(
-        "table = \"table.json\"",
-        &format!("table = {:?}", abs("table.json")),
-        1,
-    );
-    // The torque tables: the profile's own and its chassis variants' (`torque_table = "…"`
-    // lines with a path relative to the profile's folder).
-    let torque_lines: Vec<String> = text
-        .lines()
-        .filter(|l| l.starts_with("torque_table = \"") && !l.starts_with("torque_table = \"/"))
-        .map(str::to_string)
-        .collect();
-    for line in torque_lines {
-        let file = line.split('"').nth(1).unwrap();
-        rewritten = rewritten.replacen(&line, &format!("torque_table = {:?}", abs(file)), 1);
+    let mut rewritten = text.clone();
+    // The tables: the profile's own and its chassis variants', angle and torque (`table = "…"`
+    // and `torque_table = "…"` lines with a path relative to the profile's folder).
+    for key in ["table", "torque_table"] {
+        let start = format!("{key} = \"");
+        let lines: Vec<String> = text
+            .lines()
+            .filter(|l| l.starts_with(&start) && !l.starts_with(&format!("{start}/")))
+            .map(str::to_string)
+            .collect();
+        for line in lines {
+            let file = line.split('"').nth(1).unwrap();
+            rewritten = rewritten.replacen(&line, &format!("{key} = {:?}", abs(file)), 1);
+        }
     }
     assert!(
         rewritten.contains(&abs("table.json")),
