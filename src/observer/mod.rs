@@ -759,7 +759,7 @@ impl Observer {
     ///
     /// Its estimator (about 1.5 MB) is built at the channel's first event
     /// ([`Self::torque_estimators_mut`]), so that a car whose bus carries no live torque does
-    /// not hold it beside the angle's; it is checked here ([`Estimator::check`]), so that a
+    /// not hold it beside the angle's; it is checked here (`Estimator::check`), so that a
     /// table the estimator refuses is refused now.
     pub fn with_torque_alternative(mut self, alt: Alternative) -> anyhow::Result<Observer> {
         let cfg = self.torque_estimator_config();
@@ -793,7 +793,7 @@ impl Observer {
     /// its first event never builds them, and lets their tables go at that event
     /// ([`Self::torque_takes_event`]; after [`Self::reset_estimator`] the angle is then read
     /// with its own table alone until the torque takes an event again). It is checked here
-    /// ([`Estimator::check`]), so that a table the estimator refuses is refused now.
+    /// (`Estimator::check`), so that a table the estimator refuses is refused now.
     pub fn with_angle_alternative(mut self, alt: Alternative) -> anyhow::Result<Observer> {
         let Some(nominal) = self.table.as_ref() else {
             anyhow::bail!(
