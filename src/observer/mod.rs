@@ -791,8 +791,9 @@ impl Observer {
     /// has used none ([`Self::angle_estimators_mut`]): once the estimate comes from the
     /// torque, the angle's variants can no longer move it, so a car whose torque is live from
     /// its first event never builds them, and lets their tables go at that event
-    /// ([`Self::torque_takes_event`]; after [`Self::reset_estimator`] the angle is then read
-    /// with its own table alone until the torque takes an event again). It is checked here
+    /// ([`Self::torque_takes_event`]; so does a baseline event with a live torque; after
+    /// [`Self::reset_estimator`] the angle is then read with its own table alone until the
+    /// torque takes an event again). It is checked here
     /// (`Estimator::check`), so that a table the estimator refuses is refused now.
     pub fn with_angle_alternative(mut self, alt: Alternative) -> anyhow::Result<Observer> {
         let Some(nominal) = self.table.as_ref() else {
@@ -833,12 +834,12 @@ impl Observer {
         self.share_scratch();
     }
 
-    /// Says that the torque channel is about to take an event of the drive (not a baseline's):
-    /// from then on the estimate comes from the torque, so the angle's variants that are not
-    /// built yet never will be, and their tables are let go before the torque's variants are
-    /// built ([`Self::with_angle_alternative`]). A caller that feeds the estimators
-    /// ([`Self::new_caller_fed`]) calls it before [`Self::torque_estimators_mut`] for such an
-    /// event.
+    /// Says that the torque channel is about to take an event (of the drive, or of a baseline
+    /// at known clearance): the bus carries a live torque, and the estimate comes from the
+    /// torque from its first event of the drive on, so the angle's variants that are not built
+    /// yet never will be, and their tables are let go before the torque's variants are built
+    /// ([`Self::with_angle_alternative`]). A caller that feeds the estimators
+    /// ([`Self::new_caller_fed`]) calls it before [`Self::torque_estimators_mut`].
     pub fn torque_takes_event(&mut self) {
         if self.torque.is_some() {
             self.angle_deferred = Vec::new();

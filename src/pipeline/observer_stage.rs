@@ -422,7 +422,7 @@ impl ObserverStage {
             return used;
         }
         for ev in &b.evidence {
-            let (angle, torque) = self.route(ev, false, |est, table, rms, peak, cruise| {
+            let (angle, torque) = self.route(ev, |est, table, rms, peak, cruise| {
                 est.update_baseline(
                     table,
                     rms,
@@ -442,11 +442,9 @@ impl ObserverStage {
     /// Hands one event's features to the estimators that can take them: the angle's when its
     /// angle features are finite, the torque's when it has torque features. `feed(estimator,
     /// table, rms, peak, cruise rms)` says whether it took them; returns (angle, torque).
-    /// `drive`: an event of the drive, not of a baseline at known clearance.
     fn route(
         &mut self,
         ev: &Evidence,
-        drive: bool,
         mut feed: impl FnMut(&mut Estimator, &ResponseTable, f64, f64, Option<f64>) -> bool,
     ) -> (bool, bool) {
         // Every table of a channel (the nominal and its structural alternatives) takes the
@@ -455,9 +453,7 @@ impl ObserverStage {
         // chassis variants are built ([`Observer::angle_estimators_mut`]).
         let mut torque = None;
         if let Some(t) = ev.torque_nm {
-            if drive {
-                self.obs.torque_takes_event();
-            }
+            self.obs.torque_takes_event();
             for (est, table) in self.obs.torque_estimators_mut() {
                 let took = feed(est, table, t.rms, t.peak, t.cruise_rms);
                 torque.get_or_insert(took);
@@ -568,7 +564,7 @@ impl ObserverStage {
         if !self.has_table {
             return;
         }
-        let (angle, torque) = self.route(ev, true, |est, table, rms, peak, cruise| {
+        let (angle, torque) = self.route(ev, |est, table, rms, peak, cruise| {
             est.update_event(
                 table,
                 rms,
