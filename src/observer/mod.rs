@@ -457,14 +457,21 @@ struct CheckedAlternative {
 }
 
 impl CheckedAlternative {
-    /// `alt` beside `nominal` and the channel's `others` (name, ln prior): the same sensor, a
-    /// name of its own and priors that leave the nominal some.
-    fn new<'o>(
+    /// `alt` beside the channel's `nominal` table and its alternatives, `built` and `deferred`:
+    /// the same sensor, a name of its own, priors that leave the nominal some, and a table an
+    /// estimator on `cfg` takes ([`Estimator::check`]).
+    fn new(
         alt: Alternative,
         nominal: &ResponseTable,
-        others: impl Iterator<Item = (&'o str, f64)> + Clone,
+        built: &[TableAlternative],
+        deferred: &[CheckedAlternative],
+        cfg: EstimatorConfig,
         channel: &str,
     ) -> anyhow::Result<CheckedAlternative> {
+        let others = built
+            .iter()
+            .map(|a| (a.name.as_str(), a.ln_prior))
+            .chain(deferred.iter().map(|a| (a.name.as_str(), a.ln_prior)));
         let Alternative {
             name,
             prior,
@@ -490,12 +497,30 @@ impl CheckedAlternative {
                 prior + sum
             );
         }
+        Estimator::check(&table, cfg)?;
         Ok(CheckedAlternative {
             name,
             inspect,
             ln_prior: prior.ln(),
             table,
         })
+    }
+
+    /// Builds every alternative of `deferred` into `built`, each with its estimator on `cfg`;
+    /// why one could not be built goes to `unbuilt` (not expected: each passed
+    /// [`Estimator::check`] when it was added).
+    fn build_all(
+        deferred: &mut Vec<CheckedAlternative>,
+        built: &mut Vec<TableAlternative>,
+        cfg: &EstimatorConfig,
+        unbuilt: &mut Vec<String>,
+    ) {
+        for a in std::mem::take(deferred) {
+            match a.build(cfg.clone()) {
+                Ok(a) => built.push(a),
+                Err(e) => unbuilt.push(format!("{e:#}")),
+            }
+        }
     }
 
     /// With its estimator on `cfg`.
@@ -769,13 +794,14 @@ impl Observer {
                 alt.name
             );
         };
-        let others = ch
-            .alternatives
-            .iter()
-            .map(|a| (a.name.as_str(), a.ln_prior))
-            .chain(ch.deferred.iter().map(|a| (a.name.as_str(), a.ln_prior)));
-        let a = CheckedAlternative::new(alt, &ch.table, others, "torque")?;
-        Estimator::check(&a.table, cfg)?;
+        let a = CheckedAlternative::new(
+            alt,
+            &ch.table,
+            &ch.alternatives,
+            &ch.deferred,
+            cfg,
+            "torque",
+        )?;
         ch.deferred.push(a);
         Ok(self)
     }
@@ -802,17 +828,14 @@ impl Observer {
                 alt.name
             );
         };
-        let others = self
-            .angle_alternatives
-            .iter()
-            .map(|a| (a.name.as_str(), a.ln_prior))
-            .chain(
-                self.angle_deferred
-                    .iter()
-                    .map(|a| (a.name.as_str(), a.ln_prior)),
-            );
-        let a = CheckedAlternative::new(alt, nominal, others, "angle")?;
-        Estimator::check(&a.table, self.cfg.estimator.clone())?;
+        let a = CheckedAlternative::new(
+            alt,
+            nominal,
+            &self.angle_alternatives,
+            &self.angle_deferred,
+            self.cfg.estimator.clone(),
+            "angle",
+        )?;
         self.angle_deferred.push(a);
         Ok(self)
     }
@@ -824,13 +847,12 @@ impl Observer {
         {
             return;
         }
-        for a in std::mem::take(&mut self.angle_deferred) {
-            // The same table and settings passed Estimator::check when it was added.
-            match a.build(self.cfg.estimator.clone()) {
-                Ok(a) => self.angle_alternatives.push(a),
-                Err(e) => self.unbuilt.push(format!("{e:#}")),
-            }
-        }
+        CheckedAlternative::build_all(
+            &mut self.angle_deferred,
+            &mut self.angle_alternatives,
+            &self.cfg.estimator,
+            &mut self.unbuilt,
+        );
         self.share_scratch();
     }
 
@@ -853,13 +875,12 @@ impl Observer {
         let Some(ch) = self.torque.as_mut().filter(|t| !t.deferred.is_empty()) else {
             return;
         };
-        for a in std::mem::take(&mut ch.deferred) {
-            // The same table and settings passed Estimator::check when it was added.
-            match a.build(cfg.clone()) {
-                Ok(a) => ch.alternatives.push(a),
-                Err(e) => self.unbuilt.push(format!("{e:#}")),
-            }
-        }
+        CheckedAlternative::build_all(
+            &mut ch.deferred,
+            &mut ch.alternatives,
+            &cfg,
+            &mut self.unbuilt,
+        );
         self.share_scratch();
     }
 
