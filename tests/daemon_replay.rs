@@ -292,3 +292,37 @@ fn recorded_timing_replay_keeps_the_logs_pace_at_bus_rate() {
         .unwrap();
     assert!(n < 16_000, "first second already saw {n} frames: {first}");
 }
+
+/// `outputs.transmit = true` on a replay sends nothing and says so; the car's DBC need not carry
+/// SHIMMY_01 then (only a live bus is sent on), and the replay reads as it does without it.
+#[test]
+fn transmit_on_a_replay_sends_nothing_and_says_so() {
+    let Some((log, dbc)) = rav4() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write_config(
+        dir.path(),
+        &dbc,
+        &workspace().join("config/vehicles/toyota_rav4/mapping.toml"),
+    );
+    let text = std::fs::read_to_string(&cfg).unwrap().replace(
+        "[outputs]\n",
+        "[outputs]\ntransmit = true\ntransmit_interface = \"vcan0\"\n",
+    );
+    std::fs::write(&cfg, text).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_shimmyd"))
+        .arg("--config")
+        .arg(&cfg)
+        .arg("--replay")
+        .arg(&log)
+        .arg("--fast")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("outputs.transmit is set but this is a replay: nothing is sent"),
+        "{err}"
+    );
+    assert!(!err.contains("transmitting SHIMMY_01"), "{err}");
+    assert!(!records(&dir.path().join("journal")).is_empty());
+}
