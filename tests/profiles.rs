@@ -74,7 +74,7 @@ fn every_shipped_profile_loads_and_its_mapping_fits_its_dbc() {
             let law = torque_terms().unwrap();
             assert_eq!(terms(&tt), law, "{name}: nominal torque table");
             let alts = p
-                .load_torque_alternatives(&tt)
+                .load_torque_alternatives(&tt, None)
                 .unwrap_or_else(|e| panic!("{name}: {e:#}"));
             let with_torque = p.file.chassis.variants.iter();
             assert_eq!(
@@ -90,7 +90,7 @@ fn every_shipped_profile_loads_and_its_mapping_fits_its_dbc() {
         // Its chassis variants' angle tables load, each for the profile's angle sensor and
         // clearance grid, and with the nominal table's law.
         let alts = p
-            .load_angle_alternatives(&t)
+            .load_angle_alternatives(&t, None)
             .unwrap_or_else(|e| panic!("{name}: {e:#}"));
         let with_angle = p.file.chassis.variants.iter();
         assert_eq!(
@@ -223,7 +223,7 @@ fn rand_tag() -> u128 {
 fn chassis_variants_are_checked_against_their_own_chassis() {
     let p = Profile::load("shimmy_reference_eps").unwrap();
     let nominal = p.load_torque_table().unwrap().unwrap();
-    let alts = p.load_torque_alternatives(&nominal).unwrap();
+    let alts = p.load_torque_alternatives(&nominal, None).unwrap();
     let names: Vec<&str> = alts.iter().map(|a| a.name.as_str()).collect();
     assert_eq!(
         names,
@@ -256,7 +256,10 @@ fn chassis_variants_are_checked_against_their_own_chassis() {
         t.replace("brake_torque_variation_rel = [0.0, 0.05]\n", "")
     });
     let ep = Profile::load_dir(&even).unwrap();
-    let e = format!("{:#}", ep.load_torque_alternatives(&nominal).unwrap_err());
+    let e = format!(
+        "{:#}",
+        ep.load_torque_alternatives(&nominal, None).unwrap_err()
+    );
     assert!(
         e.contains("chassis variant `uneven brake discs`") && e.contains("nuisance prior"),
         "{e}"
@@ -267,7 +270,10 @@ fn chassis_variants_are_checked_against_their_own_chassis() {
         t.replace("kingpin_damping_scale = 1.2", "kingpin_damping_scale = 1.1")
     });
     let sp = Profile::load_dir(&swapped).unwrap();
-    let e = format!("{:#}", sp.load_torque_alternatives(&nominal).unwrap_err());
+    let e = format!(
+        "{:#}",
+        sp.load_torque_alternatives(&nominal, None).unwrap_err()
+    );
     assert!(e.contains("chassis variant `kingpin damping x1.2`"), "{e}");
     // A variant that changes nothing is refused.
     let idle = profile_copy("shimmy_reference_eps", |t| {
@@ -280,7 +286,10 @@ fn chassis_variants_are_checked_against_their_own_chassis() {
         t.replacen("scrub_radius_mm = 10.0", "scrub_radius_mm = 5.0", 1)
     });
     let wp = Profile::load_dir(&wrong).unwrap();
-    let e = format!("{:#}", wp.load_torque_alternatives(&nominal).unwrap_err());
+    let e = format!(
+        "{:#}",
+        wp.load_torque_alternatives(&nominal, None).unwrap_err()
+    );
     assert!(e.contains("chassis variant `scrub radius 10 mm`"), "{e}");
 
     // A variant of cars with uneven brake discs is read only with a table whose vehicles had
@@ -293,7 +302,10 @@ fn chassis_variants_are_checked_against_their_own_chassis() {
         )
     });
     let dp = Profile::load_dir(&discs).unwrap();
-    let e = format!("{:#}", dp.load_torque_alternatives(&nominal).unwrap_err());
+    let e = format!(
+        "{:#}",
+        dp.load_torque_alternatives(&nominal, None).unwrap_err()
+    );
     assert!(
         e.contains("chassis variant `scrub radius 10 mm`") && e.contains("nuisance prior"),
         "{e}"
@@ -333,11 +345,14 @@ fn chassis_variants_are_checked_against_their_own_chassis() {
     // Without a torque table the list is empty, and a profile whose mapping maps no torque has
     // none.
     let plain = Profile::load("shimmy_reference").unwrap();
-    assert!(plain.load_torque_alternatives(&nominal).unwrap().is_empty());
+    assert!(plain
+        .load_torque_alternatives(&nominal, None)
+        .unwrap()
+        .is_empty());
     let mut no_torque = p.clone();
     no_torque.mapping.steer_torque = None;
     assert!(no_torque
-        .load_torque_alternatives(&nominal)
+        .load_torque_alternatives(&nominal, None)
         .unwrap()
         .is_empty());
 }
@@ -352,7 +367,7 @@ fn chassis_variants_are_checked_against_their_own_chassis() {
 fn angle_chassis_variants_are_checked_against_their_own_chassis() {
     let p = Profile::load("shimmy_reference").unwrap();
     let nominal = p.load_table().unwrap().unwrap();
-    let alts = p.load_angle_alternatives(&nominal).unwrap();
+    let alts = p.load_angle_alternatives(&nominal, None).unwrap();
     let names: Vec<&str> = alts.iter().map(|a| a.name.as_str()).collect();
     assert_eq!(names, ["scrub radius 10 mm", "uneven brake discs"]);
     for a in &alts {
@@ -369,7 +384,31 @@ fn angle_chassis_variants_are_checked_against_their_own_chassis() {
         Some((0.0, 0.05))
     );
     assert!(alts[1].inspect.as_deref().unwrap().contains("brake discs"));
-    assert!(p.load_torque_alternatives(&nominal).unwrap().is_empty());
+    assert!(p
+        .load_torque_alternatives(&nominal, None)
+        .unwrap()
+        .is_empty());
+
+    // The variants go with the profile's own table, however its path is written (shimmyd's
+    // `vehicle.table`), and not with another file given in its place, even an identical copy.
+    let own_path = p.table_path.clone().unwrap();
+    let roundabout = own_path
+        .parent()
+        .unwrap()
+        .join("../shimmy_reference/table.json");
+    assert!(p.is_own_table(&roundabout));
+    let via_path = p
+        .load_angle_alternatives(&nominal, Some(&roundabout))
+        .unwrap();
+    assert_eq!(via_path.len(), alts.len());
+    let dir = tempfile::tempdir().unwrap();
+    let copy = dir.path().join("table.json");
+    std::fs::copy(&own_path, &copy).unwrap();
+    assert!(!p.is_own_table(&copy));
+    assert!(p
+        .load_angle_alternatives(&nominal, Some(&copy))
+        .unwrap()
+        .is_empty());
 
     // The nominal table named as the scrub variant's: built without the scrub radius.
     let own = profile_copy("shimmy_reference", |t| {
@@ -386,7 +425,10 @@ fn angle_chassis_variants_are_checked_against_their_own_chassis() {
             .join("\n")
     });
     let op = Profile::load_dir(&own).unwrap();
-    let e = format!("{:#}", op.load_angle_alternatives(&nominal).unwrap_err());
+    let e = format!(
+        "{:#}",
+        op.load_angle_alternatives(&nominal, None).unwrap_err()
+    );
     assert!(e.contains("chassis variant `scrub radius 10 mm`"), "{e}");
 
     let tableless = profile_copy("shimmy_reference", |t| {
@@ -409,7 +451,10 @@ fn angle_chassis_variants_are_checked_against_their_own_chassis() {
 
     let rav4_like = Profile::load("shimmy_reference_eps").unwrap();
     let t = rav4_like.load_table().unwrap().unwrap();
-    assert!(rav4_like.load_angle_alternatives(&t).unwrap().is_empty());
+    assert!(rav4_like
+        .load_angle_alternatives(&t, None)
+        .unwrap()
+        .is_empty());
 
     // The car profiles, for a bus without a live torque: the same two variants beside their
     // torque tables, each for the profile's own angle sensor (the RAV4's 82.9 Hz tables are its
@@ -417,7 +462,7 @@ fn angle_chassis_variants_are_checked_against_their_own_chassis() {
     for name in ["toyota_rav4", "vw_mqb", "honda_civic", "hyundai_kia"] {
         let p = Profile::load(name).unwrap();
         let nominal = p.load_table().unwrap().unwrap();
-        let alts = p.load_angle_alternatives(&nominal).unwrap();
+        let alts = p.load_angle_alternatives(&nominal, None).unwrap();
         let names: Vec<&str> = alts.iter().map(|a| a.name.as_str()).collect();
         assert_eq!(
             names,
@@ -434,7 +479,7 @@ fn angle_chassis_variants_are_checked_against_their_own_chassis() {
         }
         let torque = p.load_torque_table().unwrap().unwrap();
         assert_eq!(
-            p.load_torque_alternatives(&torque).unwrap().len(),
+            p.load_torque_alternatives(&torque, None).unwrap().len(),
             4,
             "{name}"
         );

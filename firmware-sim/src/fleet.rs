@@ -1032,9 +1032,9 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
             t.sensor.rate_hz
         );
     }
-    // The profile's chassis variants ride with its own torque table only.
+    // The profile's chassis variants ride with its own tables only: a table given is read alone.
     let torque_alternatives = match (&args.torque_table, &setup.profile, &torque) {
-        (None, Some(p), Some(t)) => p.load_torque_alternatives(t)?,
+        (None, Some(p), Some(t)) => p.load_torque_alternatives(t, None)?,
         _ => Vec::new(),
     };
     if !torque_alternatives.is_empty() {
@@ -1044,9 +1044,8 @@ pub fn run(args: FleetArgs) -> anyhow::Result<()> {
             shimmy::observer::Alternative::names(&torque_alternatives)
         );
     }
-    // Likewise its angle variants with its own angle table.
     let angle_alternatives = match (&args.table, &setup.profile) {
-        (None, Some(p)) => p.load_angle_alternatives(&table)?,
+        (None, Some(p)) => p.load_angle_alternatives(&table, None)?,
         _ => Vec::new(),
     };
     if !angle_alternatives.is_empty() {

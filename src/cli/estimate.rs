@@ -425,14 +425,13 @@ pub fn evaluate(args: &Args) -> anyhow::Result<(Option<Profile>, Estimation, Run
         (None, Some(prof)) => prof.load_torque_table()?,
         (None, None) => None,
     };
-    // The profile's chassis variants ride with its own torque table only.
+    // The profile's chassis variants ride with its own tables only: a table given is read alone.
     let torque_alternatives = match (&args.torque_table, &profile, &torque) {
-        (None, Some(prof), Some(t)) => prof.load_torque_alternatives(t)?,
+        (None, Some(prof), Some(t)) => prof.load_torque_alternatives(t, None)?,
         _ => Vec::new(),
     };
-    // Likewise its angle variants with its own angle table.
     let angle_alternatives = match (&args.table, &profile, &table) {
-        (None, Some(prof), Some(t)) => prof.load_angle_alternatives(t)?,
+        (None, Some(prof), Some(t)) => prof.load_angle_alternatives(t, None)?,
         _ => Vec::new(),
     };
     let tables = crate::pipeline::Tables {

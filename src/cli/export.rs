@@ -140,7 +140,7 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
     };
     let torque = profile.load_torque_table()?;
     let torque_alternatives = match &torque {
-        Some(t) => profile.load_torque_alternatives(t)?,
+        Some(t) => profile.load_torque_alternatives(t, None)?,
         None => Vec::new(),
     };
     let torque_table_sha256 = match (&torque, &profile.torque_table_path) {
@@ -148,7 +148,7 @@ pub fn export(args: &Args, progress: bool, signals: bool) -> anyhow::Result<Expo
         _ => None,
     };
     let angle_alternatives = match &table {
-        Some(t) => profile.load_angle_alternatives(t)?,
+        Some(t) => profile.load_angle_alternatives(t, None)?,
         None => Vec::new(),
     };
     let variants_sha256 = variants_sha256(&profile, &torque_alternatives, &angle_alternatives)?;

@@ -180,12 +180,7 @@ pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
                 profile.check_table(&t).with_context(|| {
                     format!("vehicle.table {} for profile {}", p.display(), profile.name)
                 })?;
-                Some(with_correction(
-                    profile,
-                    profile.table_path.as_deref(),
-                    p,
-                    t,
-                )?)
+                Some(with_correction(profile, p, t)?)
             } else {
                 if let Some(params) = &cfg.vehicle.params {
                     let v = crate::cli::estimate::load_vehicle(Some(params))?;
@@ -209,12 +204,7 @@ pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
                         profile.name
                     )
                 })?;
-                Some(with_correction(
-                    profile,
-                    profile.torque_table_path.as_deref(),
-                    p,
-                    t,
-                )?)
+                Some(with_correction(profile, p, t)?)
             } else {
                 let v = crate::cli::estimate::load_vehicle(cfg.vehicle.params.as_deref())?;
                 t.check_torque_vehicle(&v)
@@ -224,12 +214,11 @@ pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
         }
         None => None,
     };
-    // The profile's chassis variants ride with its own torque table, not with another one.
-    let torque_alternatives = match (&torque, &cfg.vehicle.torque_table, &cfg.profile) {
-        (Some(t), Some(p), Some(profile))
-            if is_profiles(profile.torque_table_path.as_deref(), p) =>
-        {
-            profile.load_torque_alternatives(t)?
+    // The profile's chassis variants ride with its own tables, not with others given in their
+    // place.
+    let torque_alternatives = match (&torque, &cfg.profile) {
+        (Some(t), Some(profile)) => {
+            profile.load_torque_alternatives(t, cfg.vehicle.torque_table.as_deref())?
         }
         _ => Vec::new(),
     };
@@ -241,10 +230,9 @@ pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
             crate::observer::Alternative::names(&torque_alternatives)
         );
     }
-    // Likewise its angle variants with its own angle table.
-    let angle_alternatives = match (&table, &cfg.vehicle.table, &cfg.profile) {
-        (Some(t), Some(p), Some(profile)) if is_profiles(profile.table_path.as_deref(), p) => {
-            profile.load_angle_alternatives(t)?
+    let angle_alternatives = match (&table, &cfg.profile) {
+        (Some(t), Some(profile)) => {
+            profile.load_angle_alternatives(t, cfg.vehicle.table.as_deref())?
         }
         _ => Vec::new(),
     };
@@ -310,28 +298,17 @@ pub fn for_daemon(cfg: &Config) -> anyhow::Result<Box<ObserverStage>> {
     Ok(Box::new(stage))
 }
 
-/// The profile's own table (`own`, loaded from `path`) with the profile's correction attached
-/// ([`crate::profile::Profile::corrected`]); a table given in its place is another table, which
-/// the profile's correction does not describe.
+/// The table loaded from `path` with the profile's correction attached
+/// ([`crate::profile::Profile::corrected`]) when it is the profile's own; a table given in its
+/// place is another table, which the profile's correction does not describe.
 fn with_correction(
     profile: &crate::profile::Profile,
-    own: Option<&std::path::Path>,
     path: &std::path::Path,
     t: ResponseTable,
 ) -> anyhow::Result<ResponseTable> {
-    if is_profiles(own, path) {
+    if profile.is_own_table(path) {
         profile.corrected(t)
     } else {
         Ok(t)
     }
-}
-
-/// Whether `path` is the profile's own table `own` (the same file).
-fn is_profiles(own: Option<&std::path::Path>, path: &std::path::Path) -> bool {
-    let same = |a: &std::path::Path, b: &std::path::Path| match (a.canonicalize(), b.canonicalize())
-    {
-        (Ok(a), Ok(b)) => a == b,
-        _ => a == b,
-    };
-    own.is_some_and(|o| same(o, path))
 }

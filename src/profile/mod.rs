@@ -197,6 +197,14 @@ fn default_variant_prior() -> f64 {
     DEFAULT_VARIANT_PRIOR
 }
 
+/// Whether two paths name the same file (compared as written where either cannot be resolved).
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => a == b,
+    }
+}
+
 /// Which steering signal's table a chassis variant's entry names.
 #[derive(Clone, Copy)]
 enum Signal {
@@ -607,7 +615,11 @@ impl Profile {
     /// The torque tables of the profile's `[[chassis.variants]]`, by name, each checked as
     /// [`Self::check_torque_table`] checks the nominal one but against its variant's chassis,
     /// to go beside `nominal`, the profile's torque table as [`Self::load_torque_table`] gave
-    /// it. Empty when the profile has no variants, names no torque table or maps no torque.
+    /// it, or as read from `read_from` (`None`: the profile's own file). Empty when the profile
+    /// has no variants, names no torque table or maps no torque, and when `read_from` is another
+    /// file than the profile's torque table: the variants are the alternatives of the profile's
+    /// own table, not of one given in its place.
+    ///
     /// The correction `nominal` carries (the profile's, checked against the table it was
     /// fitted on) is applied to every variant's table too: its gains describe the car's signal
     /// path (sensor scale, column transfer), which a scrub radius does not change, and the
@@ -615,27 +627,36 @@ impl Profile {
     pub fn load_torque_alternatives(
         &self,
         nominal: &ResponseTable,
+        read_from: Option<&Path>,
     ) -> anyhow::Result<Vec<crate::observer::Alternative>> {
-        let variants = &self.file.chassis.variants;
-        if variants.is_empty() || self.torque_table_path.is_none() {
-            return Ok(Vec::new());
-        }
         if self.mapping.steer_torque.is_none() {
             return Ok(Vec::new());
         }
-        self.load_alternatives(nominal, Signal::Torque)
+        self.load_alternatives(nominal, read_from, Signal::Torque)
     }
 
     /// The angle tables of the profile's `[[chassis.variants]]` that name one, by name, each
     /// checked as [`Self::check_table`] checks the nominal one but against its variant's
     /// chassis and prior, to go beside `nominal`, the profile's angle table as
-    /// [`Self::load_table`] gave it (its correction, when it has one, applies to them too, as
-    /// [`Self::load_torque_alternatives`] says). Empty when no variant names an angle table.
+    /// [`Self::load_table`] gave it or as read from `read_from` (`None`: the profile's own
+    /// file; its correction, when it has one, applies to them too, as
+    /// [`Self::load_torque_alternatives`] says). Empty when no variant names an angle table,
+    /// and when `read_from` is another file than the profile's angle table.
     pub fn load_angle_alternatives(
         &self,
         nominal: &ResponseTable,
+        read_from: Option<&Path>,
     ) -> anyhow::Result<Vec<crate::observer::Alternative>> {
-        self.load_alternatives(nominal, Signal::Angle)
+        self.load_alternatives(nominal, read_from, Signal::Angle)
+    }
+
+    /// Whether `path` is one of the profile's own tables, its angle or its torque table (the
+    /// same file): a table given in its place is another table, which neither the profile's
+    /// correction nor its chassis variants describe.
+    pub fn is_own_table(&self, path: &Path) -> bool {
+        [&self.table_path, &self.torque_table_path]
+            .into_iter()
+            .any(|own| own.as_deref().is_some_and(|o| same_file(o, path)))
     }
 
     /// The variants' tables of `signal`, each checked against its variant's chassis and prior
@@ -643,8 +664,19 @@ impl Profile {
     fn load_alternatives(
         &self,
         nominal: &ResponseTable,
+        read_from: Option<&Path>,
         signal: Signal,
     ) -> anyhow::Result<Vec<crate::observer::Alternative>> {
+        let own = match signal {
+            Signal::Angle => &self.table_path,
+            Signal::Torque => &self.torque_table_path,
+        };
+        let Some(own) = own else {
+            return Ok(Vec::new());
+        };
+        if read_from.is_some_and(|p| !same_file(own, p)) {
+            return Ok(Vec::new());
+        }
         let mut out = Vec::new();
         for v in &self.file.chassis.variants {
             let (file, what) = match signal {
