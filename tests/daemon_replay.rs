@@ -38,26 +38,39 @@ fn rav4() -> Option<(PathBuf, PathBuf)> {
     Some((log, dbc))
 }
 
+/// shimmyd's configuration for the RAV4 log in `dir`: its DBC, the RAV4 profile's mapping.
+fn rav4_config(dir: &Path, dbc: &Path) -> PathBuf {
+    write_config(
+        dir,
+        dbc,
+        &workspace().join("config/vehicles/toyota_rav4/mapping.toml"),
+    )
+}
+
+/// shimmyd replaying `log` as fast as it can with `cfg`: whether it succeeded, its stderr.
+fn replay_fast(cfg: &Path, log: &Path) -> (bool, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_shimmyd"))
+        .arg("--config")
+        .arg(cfg)
+        .arg("--replay")
+        .arg(log)
+        .arg("--fast")
+        .output()
+        .unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).to_string(),
+    )
+}
+
 #[test]
 fn rav4_log_raises_nothing_reports_counters_and_state_resumes() {
     let Some((log, dbc)) = rav4() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let cfg = write_config(
-        dir.path(),
-        &dbc,
-        &workspace().join("config/vehicles/toyota_rav4/mapping.toml"),
-    );
+    let cfg = rav4_config(dir.path(), &dbc);
     let run = || {
-        let out = Command::new(env!("CARGO_BIN_EXE_shimmyd"))
-            .arg("--config")
-            .arg(&cfg)
-            .arg("--replay")
-            .arg(&log)
-            .arg("--fast")
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&out.stderr).to_string();
-        assert!(out.status.success(), "{err}");
+        let (ok, err) = replay_fast(&cfg, &log);
+        assert!(ok, "{err}");
         err
     };
     let err = run();
@@ -99,11 +112,7 @@ fn rav4_log_raises_nothing_reports_counters_and_state_resumes() {
 fn sigterm_mid_replay_stops_cleanly() {
     let Some((log, dbc)) = rav4() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let cfg = write_config(
-        dir.path(),
-        &dbc,
-        &workspace().join("config/vehicles/toyota_rav4/mapping.toml"),
-    );
+    let cfg = rav4_config(dir.path(), &dbc);
     // Recorded timing: the log lasts about a minute, so the daemon is still running when told
     // to stop.
     let child = Command::new(env!("CARGO_BIN_EXE_shimmyd"))
@@ -147,29 +156,15 @@ fn sigterm_mid_replay_stops_cleanly() {
 fn corrupt_state_is_moved_aside_and_reported() {
     let Some((log, dbc)) = rav4() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let cfg = write_config(
-        dir.path(),
-        &dbc,
-        &workspace().join("config/vehicles/toyota_rav4/mapping.toml"),
-    );
+    let cfg = rav4_config(dir.path(), &dbc);
     std::fs::create_dir_all(dir.path().join("state")).unwrap();
     std::fs::write(
         dir.path().join("state/state.json"),
         b"{\"odometer_km\": 12.5, \"ev",
     )
     .unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_shimmyd"))
-        .args([
-            "--config".as_ref(),
-            cfg.as_os_str(),
-            "--fast".as_ref(),
-            "--replay".as_ref(),
-            log.as_os_str(),
-        ])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
+    let (ok, err) = replay_fast(&cfg, &log);
+    assert!(ok, "{err}");
     assert!(
         err.contains("did not parse") && err.contains("state.json.bad-"),
         "{err}"
@@ -191,11 +186,7 @@ fn corrupt_state_is_moved_aside_and_reported() {
 fn sighup_reloads_alerts_and_keeps_running_config_when_broken() {
     let Some((log, dbc)) = rav4() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let cfg = write_config(
-        dir.path(),
-        &dbc,
-        &workspace().join("config/vehicles/toyota_rav4/mapping.toml"),
-    );
+    let cfg = rav4_config(dir.path(), &dbc);
     let good = std::fs::read_to_string(&cfg).unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_shimmyd"))
         .arg("--config")
@@ -299,26 +290,14 @@ fn recorded_timing_replay_keeps_the_logs_pace_at_bus_rate() {
 fn transmit_on_a_replay_sends_nothing_and_says_so() {
     let Some((log, dbc)) = rav4() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let cfg = write_config(
-        dir.path(),
-        &dbc,
-        &workspace().join("config/vehicles/toyota_rav4/mapping.toml"),
-    );
+    let cfg = rav4_config(dir.path(), &dbc);
     let text = std::fs::read_to_string(&cfg).unwrap().replace(
         "[outputs]\n",
         "[outputs]\ntransmit = true\ntransmit_interface = \"vcan0\"\n",
     );
     std::fs::write(&cfg, text).unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_shimmyd"))
-        .arg("--config")
-        .arg(&cfg)
-        .arg("--replay")
-        .arg(&log)
-        .arg("--fast")
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
+    let (ok, err) = replay_fast(&cfg, &log);
+    assert!(ok, "{err}");
     assert!(
         err.contains("outputs.transmit is set but this is a replay: nothing is sent"),
         "{err}"
